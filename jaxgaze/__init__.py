@@ -1,0 +1,47 @@
+"""jaxgaze: probabilistic models of gaze and joint attention in JAX.
+
+Frames and units are documented in ``docs/conventions.md``: world/head/camera
+frames, metres, radians inside (degrees only in names ending ``_deg``).
+"""
+
+from jaxgaze import geometry
+from jaxgaze.concurrence import (
+    Concurrences,
+    MeanShiftResult,
+    Tracks,
+    find_concurrences,
+    find_concurrences_over_frames,
+    meanshift,
+    track_concurrences,
+)
+from jaxgaze.cone import (
+    cone_log_density,
+    max_intensity_projection,
+    ray_kernels,
+    saliency_field,
+    saliency_field_grid,
+    sample_gaze_directions,
+    sample_points_of_regard,
+)
+from jaxgaze.rays import GazeRays
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "geometry",
+    "GazeRays",
+    "cone_log_density",
+    "sample_gaze_directions",
+    "sample_points_of_regard",
+    "ray_kernels",
+    "saliency_field",
+    "saliency_field_grid",
+    "max_intensity_projection",
+    "meanshift",
+    "MeanShiftResult",
+    "find_concurrences",
+    "find_concurrences_over_frames",
+    "Concurrences",
+    "track_concurrences",
+    "Tracks",
+]

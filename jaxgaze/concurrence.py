@@ -1,0 +1,526 @@
+"""Gaze concurrences: modes of the social saliency field (Park et al. 2012, Sec. 3.3).
+
+Pipeline for one frame (all in JAX, fixed shapes, so it vmaps over frames):
+
+1. **Seeds** at fixed depths along every primary ray.
+2. **Mean-shift** (eq. 5–6), vmapped over seeds, each a ``lax.while_loop`` that
+   stops when a step is shorter than ``tol`` or after ``max_iter`` steps.
+3. **Exclusive support.** Converged seeds are visited by decreasing field value.
+   A seed within ``merge_radius`` of an accepted mode is merged into it. A seed
+   whose mean-shift weight is dominated by one ray (share > ``dominance``) is
+   rejected. Otherwise it claims every not-yet-claimed ray whose perspective
+   distance is below ``claim_bandwidths`` bandwidths, and becomes a mode if it
+   claims at least ``min_rays`` rays. Each ray thus supports at most one mode.
+4. **Location and uncertainty.** The mode's location is refined to the
+   maximum-likelihood common point of regard of its member rays,
+   ``argmin_x Σ_i ‖d_i(x)‖² / 2h_i²`` (Levenberg–Marquardt, ``optimistix``),
+   and its covariance is the Laplace (Gauss–Newton) approximation
+   ``(JᵀJ + I/s²)⁻¹`` with ``J`` the Jacobian of the whitened residuals
+   ``d_i(x)/h_i`` and a weak prior of scale ``s = prior_scale`` metres that
+   keeps near-parallel rays finite. Under the cone model the residuals at the
+   true point are standard normal, so this covariance is the one checked by
+   coverage. The paper's confidence region, ``{x : f(x) ≥ 0.8 f(mode)}``, is
+   reported separately by its principal axes from the Hessian of ``log f``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, Bool, Float, Int
+
+from jaxgaze.cone import ray_kernels
+from jaxgaze.rays import GazeRays
+
+__all__ = [
+    "MeanShiftResult",
+    "Concurrences",
+    "Tracks",
+    "meanshift",
+    "find_concurrences",
+    "find_concurrences_over_frames",
+    "track_concurrences",
+    "DEFAULT_SEED_DEPTHS",
+]
+
+#: Depths (metres) at which seeds are placed along each primary ray.
+DEFAULT_SEED_DEPTHS = tuple(float(x) for x in np.geomspace(0.4, 16.0, 16))
+
+_REGION_LEVEL = 0.8  # Park et al. Sec. 4.1: region above 80 % of the local maximum
+
+
+class MeanShiftResult(NamedTuple):
+    """Output of :func:`meanshift` for ``S`` seeds."""
+
+    points: Float[Array, "S 3"]
+    field_values: Float[Array, "S"]
+    iterations: Int[Array, "S"]
+    converged: Bool[Array, "S"]
+
+
+class Concurrences(NamedTuple):
+    """Gaze concurrences of one frame (``K`` modes) or of many (``(T, K)``, padded).
+
+    Attributes:
+        locations: ``(…, K, 3)`` world-frame points (m).
+        covariances: ``(…, K, 3, 3)`` Laplace covariance of each location (m²).
+        field_values: ``(…, K)`` social saliency ``f`` at each location.
+        num_rays: ``(…, K)`` number of member rays.
+        membership: ``(…, N)`` index of the mode each ray supports, or −1.
+        region_axes: ``(…, K, 3, 3)`` columns are the principal directions of the
+            80 %-of-maximum confidence region of ``f`` (Park et al., Sec. 4.1).
+        region_semi_axes: ``(…, K, 3)`` its semi-axis lengths (m), from the
+            quadratic approximation of ``log f``; ``inf`` along a flat direction.
+        converged: ``(…, K)`` whether the mean-shift seed converged within ``tol``.
+        valid: ``(…, K)`` mask of real modes (all ``True`` for a single frame).
+    """
+
+    locations: Float[Array, "... K 3"]
+    covariances: Float[Array, "... K 3 3"]
+    field_values: Float[Array, "... K"]
+    num_rays: Int[Array, "... K"]
+    membership: Int[Array, "... N"]
+    region_axes: Float[Array, "... K 3 3"]
+    region_semi_axes: Float[Array, "... K 3"]
+    converged: Bool[Array, "... K"]
+    valid: Bool[Array, "... K"]
+
+    @property
+    def count(self) -> Int[Array, "..."]:
+        """Number of concurrences (per frame for a recording)."""
+        return jnp.sum(self.valid, axis=-1)
+
+    def members(self, k: int) -> np.ndarray:
+        """Indices of the rays that support mode ``k`` (single frame)."""
+        return np.flatnonzero(np.asarray(self.membership) == k)
+
+    def frame(self, t: int) -> "Concurrences":
+        """Frame ``t`` of a recording, with the padding removed."""
+        one = Concurrences(*(np.asarray(a)[t] for a in self))
+        keep = np.asarray(one.valid)
+        return one._replace(
+            **{name: getattr(one, name)[keep] for name in one._fields if name != "membership"}
+        )
+
+
+class Tracks(NamedTuple):
+    """Concurrences linked over frames. ``track_ids[t, k]`` is −1 for padding."""
+
+    track_ids: Int[Array, "T K"]
+    num_tracks: Int[Array, ""]
+
+    def trajectories(self, concurrences: Concurrences) -> dict[int, dict[str, np.ndarray]]:
+        """``{track id: {"frames", "locations", "birth", "death"}}`` on the host."""
+        ids = np.asarray(self.track_ids)
+        locations = np.asarray(concurrences.locations)
+        out = {}
+        for track in range(int(self.num_tracks)):
+            frames, slots = np.nonzero(ids == track)
+            if len(frames) == 0:
+                continue
+            order = np.argsort(frames)
+            frames, slots = frames[order], slots[order]
+            out[track] = {
+                "frames": frames,
+                "locations": locations[frames, slots],
+                "birth": int(frames[0]),
+                "death": int(frames[-1]),
+            }
+        return out
+
+
+# ---------------------------------------------------------------------------
+# Mean-shift kernel (eq. 5–6)
+
+
+def _meanshift_step(rays: GazeRays, x: Float[Array, "3"]) -> tuple[Array, Array]:
+    """One closed-form update ``x ← Σ w_i x̄_i / Σ w_i`` (eq. 6) and ``Σ w_i``.
+
+    With ``t_i = v_iᵀ(x − p_i)`` and ``r_i² = ‖x − x̂_i‖²``:
+    ``w_i = exp(−r_i² / 2h_i²t_i²) / (h_i³ t_i²)`` (Gaussian profile, ``g ∝ e^{−s/2}``)
+    and ``x̄_i = x̂_i + (r_i²/t_i) v_i = p_i + (‖x − p_i‖²/t_i) v_i``.
+    Rays with ``t_i ≤ 0`` (behind the eye) or masked get zero weight.
+    """
+    diff = x - rays.origins
+    t = jnp.einsum("nk,nk->n", diff, rays.directions)
+    dist2 = jnp.einsum("nk,nk->n", diff, diff)
+    ok = (t > 0) & rays.mask
+    t_safe = jnp.where(ok, t, 1.0)
+    h = rays.bandwidth
+    r2 = jnp.maximum(dist2 - t * t, 0.0)
+    w = jnp.where(ok, jnp.exp(-r2 / (2.0 * h * h * t_safe * t_safe)) / (h**3 * t_safe * t_safe), 0.0)
+    total = jnp.sum(w)
+    target = w @ rays.origins + (w * dist2 / t_safe) @ rays.directions
+    x_new = jnp.where(total > 0, target / jnp.where(total > 0, total, 1.0), x)
+    return x_new, total
+
+
+def _field_value(rays: GazeRays, x: Float[Array, "3"]) -> Array:
+    return jnp.sum(ray_kernels(rays, x)) / jnp.maximum(jnp.sum(rays.mask), 1)
+
+
+def meanshift(
+    rays: GazeRays,
+    seeds: Float[Array, "S 3"],
+    *,
+    tol: float = 1e-4,
+    max_iter: int = 200,
+) -> MeanShiftResult:
+    """Run the mean-shift of eq. 6 from each seed until a step is below ``tol`` metres.
+
+    Jit-compatible and vmapped over seeds; each seed runs its own
+    ``lax.while_loop``. ``f`` never decreases along a sequence (Theorem 1).
+    A seed where every weight underflows (far from all rays) does not move and
+    is reported as not converged.
+    """
+
+    def run_one(x0):
+        def cond(state):
+            _, it, done, _ = state
+            return (~done) & (it < max_iter)
+
+        def body(state):
+            x, it, _, _ = state
+            x_new, total = _meanshift_step(rays, x)
+            step = jnp.linalg.norm(x_new - x)
+            return x_new, it + 1, step < tol, total > 0
+
+        x, it, done, alive = jax.lax.while_loop(cond, body, (x0, jnp.int32(0), jnp.bool_(False), jnp.bool_(True)))
+        return x, it, done & alive
+
+    points, iterations, converged = jax.vmap(run_one)(seeds)
+    values = jax.vmap(lambda p: _field_value(rays, p))(points)
+    return MeanShiftResult(points, values, iterations, converged)
+
+
+# ---------------------------------------------------------------------------
+# Modes, exclusive support, Laplace covariance
+
+
+def _whitened_distances(rays: GazeRays, x: Float[Array, "3"]) -> tuple[Array, Array]:
+    """``(‖d_i(x)‖ / h_i, in front and real)`` for every ray."""
+    diff = x - rays.origins
+    t = jnp.einsum("nk,nk->n", diff, rays.directions)
+    ok = (t > 0) & rays.mask
+    r2 = jnp.maximum(jnp.einsum("nk,nk->n", diff, diff) - t * t, 0.0)
+    return jnp.sqrt(r2) / (jnp.where(ok, t, 1.0) * rays.bandwidth), ok
+
+
+def _dominant_share(rays: GazeRays, x: Float[Array, "3"]) -> Array:
+    diff = x - rays.origins
+    t = jnp.einsum("nk,nk->n", diff, rays.directions)
+    ok = (t > 0) & rays.mask
+    t_safe = jnp.where(ok, t, 1.0)
+    h = rays.bandwidth
+    r2 = jnp.maximum(jnp.einsum("nk,nk->n", diff, diff) - t * t, 0.0)
+    log_w = jnp.where(ok, -r2 / (2 * h * h * t_safe * t_safe) - 3 * jnp.log(h) - 2 * jnp.log(t_safe), -jnp.inf)
+    return jnp.exp(jnp.max(log_w) - jax.nn.logsumexp(log_w))
+
+
+def _member_residuals(x: Float[Array, "3"], args) -> Float[Array, "N 3"]:
+    """Whitened perspective distances ``d_i(x)/h_i`` of the member rays (0 for others)."""
+    rays, members = args
+    diff = x - rays.origins
+    t = jnp.einsum("nk,nk->n", diff, rays.directions)
+    # Members sit in front of the eye at the mode; clamp so a wild LM step cannot divide by 0.
+    t_safe = jnp.maximum(t, 1e-3)
+    d = (diff - t[:, None] * rays.directions) / (t_safe * rays.bandwidth)[:, None]
+    return jnp.where(members[:, None], d, 0.0)
+
+
+def _refine_and_laplace(rays, members, x0, prior_scale, max_steps):
+    solver = optx.LevenbergMarquardt(rtol=1e-7, atol=1e-9)
+    sol = optx.least_squares(
+        _member_residuals, solver, x0, args=(rays, members), max_steps=max_steps, throw=False
+    )
+    ok = sol.result == optx.RESULTS.successful
+    x = jnp.where(ok, sol.value, x0)
+    jac = jax.jacfwd(_member_residuals)(x, (rays, members)).reshape(-1, 3)
+    precision = jac.T @ jac + jnp.eye(3, dtype=x.dtype) / prior_scale**2
+    return x, jnp.linalg.inv(precision)
+
+
+def _region(rays: GazeRays, x: Float[Array, "3"]) -> tuple[Array, Array]:
+    """Principal axes and semi-axes of ``{f ≥ 0.8 f(x)}`` from the Hessian of ``log f``."""
+    hess = jax.hessian(lambda y: jnp.log(_field_value(rays, y)))(x)
+    curvature, axes = jnp.linalg.eigh(-0.5 * (hess + hess.T))
+    level = 2.0 * math.log(1.0 / _REGION_LEVEL)
+    semi = jnp.where(curvature > 0, jnp.sqrt(level / jnp.where(curvature > 0, curvature, 1.0)), jnp.inf)
+    return axes, semi
+
+
+def _concurrences_one_frame(
+    rays: GazeRays,
+    seed_depths: Float[Array, "S"],
+    *,
+    min_rays: int,
+    claim_bandwidths: float,
+    dominance: float,
+    merge_radius: float,
+    tol: float,
+    max_iter: int,
+    max_modes: int,
+    prior_scale: float,
+    refine_steps: int,
+) -> Concurrences:
+    n = rays.num_rays
+    dtype = rays.origins.dtype
+    seeds = rays.origins[:, None, :] + seed_depths[None, :, None] * rays.directions[:, None, :]
+    seeds = seeds.reshape(-1, 3)
+    seed_ok = jnp.repeat(rays.mask, seed_depths.shape[0])
+    ms = meanshift(rays, seeds, tol=tol, max_iter=max_iter)
+    score = jnp.where(seed_ok & ms.converged, ms.field_values, -jnp.inf)
+    order = jnp.argsort(-score)
+
+    def visit(carry, s):
+        claimed, membership, modes, mode_conv, count = carry
+        x = ms.points[s]
+        dist, ok = _whitened_distances(rays, x)
+        candidates = ok & (dist < claim_bandwidths) & ~claimed
+        slot = jnp.arange(max_modes)
+        near_existing = jnp.any((slot < count) & (jnp.linalg.norm(modes - x, axis=-1) < merge_radius))
+        accept = (
+            jnp.isfinite(score[s])
+            & ~near_existing
+            & (_dominant_share(rays, x) <= dominance)
+            & (jnp.sum(candidates) >= min_rays)
+            & (count < max_modes)
+        )
+        claimed = claimed | (candidates & accept)
+        membership = jnp.where(candidates & accept, count, membership)
+        modes = jnp.where(accept & (slot == count)[:, None], x, modes)
+        mode_conv = jnp.where(accept & (slot == count), ms.converged[s], mode_conv)
+        return (claimed, membership, modes, mode_conv, count + accept.astype(jnp.int32)), None
+
+    init = (
+        jnp.zeros(n, bool),
+        jnp.full(n, -1, jnp.int32),
+        jnp.zeros((max_modes, 3), dtype),
+        jnp.zeros(max_modes, bool),
+        jnp.int32(0),
+    )
+    (_, membership, modes, mode_conv, count), _ = jax.lax.scan(visit, init, order)
+    valid = jnp.arange(max_modes) < count
+    member_mask = membership[None, :] == jnp.arange(max_modes)[:, None]
+
+    locations, covariances = jax.vmap(
+        lambda m, x0: _refine_and_laplace(rays, m, x0, prior_scale, refine_steps)
+    )(member_mask, modes)
+    axes, semi = jax.vmap(lambda x: _region(rays, x))(modes)
+    values = jax.vmap(lambda x: _field_value(rays, x))(locations)
+
+    def pad(a, fill=0.0):
+        mask = valid.reshape(valid.shape + (1,) * (a.ndim - 1))
+        return jnp.where(mask, a, jnp.asarray(fill, a.dtype))
+
+    return Concurrences(
+        locations=pad(locations),
+        covariances=pad(covariances),
+        field_values=pad(values),
+        num_rays=jnp.sum(member_mask, axis=1).astype(jnp.int32),
+        membership=membership,
+        region_axes=pad(axes),
+        region_semi_axes=pad(semi),
+        converged=mode_conv & valid,
+        valid=valid,
+    )
+
+
+_STATIC = (
+    "min_rays",
+    "claim_bandwidths",
+    "dominance",
+    "merge_radius",
+    "tol",
+    "max_iter",
+    "max_modes",
+    "prior_scale",
+    "refine_steps",
+)
+_one_frame_jit = jax.jit(_concurrences_one_frame, static_argnames=_STATIC)
+# jax.vmap does not forward keyword arguments to in_axes, so wrap explicitly.
+_over_frames_jit = jax.jit(
+    lambda rays, depths, **kw: jax.vmap(lambda r: _concurrences_one_frame(r, depths, **kw))(rays),
+    static_argnames=_STATIC,
+)
+
+
+def _options(rays, seed_depths, min_rays, claim_bandwidths, dominance, merge_radius, tol, max_iter, max_modes,
+             prior_scale, refine_steps):
+    if not isinstance(rays, GazeRays):
+        raise TypeError(f"expected jaxgaze.GazeRays, got {type(rays).__name__}")
+    if int(min_rays) != min_rays or min_rays < 2:
+        raise ValueError(f"min_rays must be an integer ≥ 2 (a concurrence needs two people), got {min_rays}")
+    if not 0 < dominance <= 1:
+        raise ValueError(f"dominance must lie in (0, 1], got {dominance}")
+    for name, value in (("claim_bandwidths", claim_bandwidths), ("merge_radius", merge_radius), ("tol", tol),
+                        ("prior_scale", prior_scale)):
+        if not value > 0:
+            raise ValueError(f"{name} must be positive, got {value}")
+    depths = np.asarray(seed_depths, dtype=float).reshape(-1)
+    if depths.size == 0 or not np.all(np.isfinite(depths)) or np.any(depths <= 0):
+        raise ValueError("seed_depths must be a non-empty list of positive, finite depths (metres)")
+    n = rays.num_rays
+    k = n // min_rays if max_modes is None else min(int(max_modes), n // min_rays)
+    static = dict(
+        min_rays=int(min_rays), claim_bandwidths=float(claim_bandwidths), dominance=float(dominance),
+        merge_radius=float(merge_radius), tol=float(tol), max_iter=int(max_iter), max_modes=k,
+        prior_scale=float(prior_scale), refine_steps=int(refine_steps),
+    )
+    return jnp.asarray(depths, rays.origins.dtype), static
+
+
+def _empty(batch_shape: tuple[int, ...], n: int, dtype) -> Concurrences:
+    z = lambda *s, dt=dtype: jnp.zeros(batch_shape + (0,) + s, dt)  # noqa: E731
+    return Concurrences(
+        locations=z(3), covariances=z(3, 3), field_values=z(), num_rays=z(dt=jnp.int32),
+        membership=jnp.full(batch_shape + (n,), -1, jnp.int32), region_axes=z(3, 3),
+        region_semi_axes=z(3), converged=z(dt=bool), valid=z(dt=bool),
+    )
+
+
+def find_concurrences(
+    rays: GazeRays,
+    *,
+    seed_depths=DEFAULT_SEED_DEPTHS,
+    min_rays: int = 2,
+    claim_bandwidths: float = 3.0,
+    dominance: float = 0.9,
+    merge_radius: float = 0.3,
+    tol: float = 1e-4,
+    max_iter: int = 200,
+    max_modes: int | None = None,
+    prior_scale: float = 100.0,
+    refine_steps: int = 64,
+) -> Concurrences:
+    """Number, locations and uncertainty of the gaze concurrences in one frame.
+
+    Args:
+        rays: one frame of primary gaze rays, ``(N, 3)``, world frame, metres.
+        seed_depths: depths (m) of the mean-shift seeds along every ray.
+        min_rays: fewest rays a mode must claim to count (≥ 2).
+        claim_bandwidths: a ray supports a mode if ``‖d(l, x)‖ < claim_bandwidths · h``.
+        dominance: reject a mode if one ray carries more than this share of ``Σ w``.
+        merge_radius: seeds converging within this distance (m) of a mode merge into it.
+        tol, max_iter: mean-shift stopping rule (step length in m, iteration cap).
+        max_modes: cap on the number of modes (default ``N // min_rays``).
+        prior_scale: standard deviation (m) of the weak Gaussian prior on a location.
+        refine_steps: Levenberg–Marquardt steps for the location refinement.
+
+    Returns:
+        :class:`Concurrences` with exactly the ``K`` modes found, ordered by
+        decreasing field value. One ray or none gives ``K = 0``.
+    """
+    if isinstance(rays, GazeRays) and rays.batch_shape:
+        raise ValueError(
+            f"find_concurrences takes one frame; rays have batch shape {rays.batch_shape}. "
+            "Use find_concurrences_over_frames for a recording."
+        )
+    depths, static = _options(rays, seed_depths, min_rays, claim_bandwidths, dominance, merge_radius, tol,
+                              max_iter, max_modes, prior_scale, refine_steps)
+    if static["max_modes"] == 0:
+        return _empty((), rays.num_rays, rays.origins.dtype)
+    result = _one_frame_jit(rays, depths, **static)
+    keep = np.asarray(result.valid)
+    return Concurrences(
+        **{name: (value if name == "membership" else value[keep]) for name, value in result._asdict().items()}
+    )
+
+
+def find_concurrences_over_frames(
+    rays: GazeRays,
+    *,
+    seed_depths=DEFAULT_SEED_DEPTHS,
+    min_rays: int = 2,
+    claim_bandwidths: float = 3.0,
+    dominance: float = 0.9,
+    merge_radius: float = 0.3,
+    tol: float = 1e-4,
+    max_iter: int = 200,
+    max_modes: int | None = None,
+    prior_scale: float = 100.0,
+    refine_steps: int = 64,
+) -> Concurrences:
+    """:func:`find_concurrences` for a whole recording, vmapped over frames.
+
+    ``rays`` has shape ``(T, N, 3)`` with ``rays.mask`` marking the people
+    present in each frame (see :meth:`GazeRays.stack`). The result is padded to
+    ``K = max_modes`` (default ``N // min_rays``) modes per frame; ``valid``
+    marks the real ones and ``count`` gives K per frame.
+    """
+    if not isinstance(rays, GazeRays) or len(rays.batch_shape) != 1:
+        shape = rays.batch_shape if isinstance(rays, GazeRays) else None
+        raise ValueError(f"find_concurrences_over_frames needs rays of shape (T, N, 3); batch shape is {shape}")
+    depths, static = _options(rays, seed_depths, min_rays, claim_bandwidths, dominance, merge_radius, tol,
+                              max_iter, max_modes, prior_scale, refine_steps)
+    if static["max_modes"] == 0:
+        return _empty(rays.batch_shape, rays.num_rays, rays.origins.dtype)
+    return _over_frames_jit(rays, depths, **static)
+
+
+# ---------------------------------------------------------------------------
+# Tracking over frames
+
+
+def track_concurrences(concurrences: Concurrences, *, max_distance: float = 0.5, max_gap: int = 2) -> Tracks:
+    """Link the modes of consecutive frames into trajectories with birth and death.
+
+    A ``lax.scan`` over frames. In each frame the modes, strongest first, take
+    the nearest live track within ``max_distance`` metres that is not yet taken;
+    a mode with none starts a new track (birth). A track not seen for more than
+    ``max_gap`` frames ends (death) and is never revived.
+    """
+    if concurrences.locations.ndim != 3:
+        raise ValueError("track_concurrences needs the padded (T, K) result of find_concurrences_over_frames")
+    if not max_distance > 0 or max_gap < 0:
+        raise ValueError("max_distance must be positive and max_gap non-negative")
+    k = concurrences.locations.shape[1]
+    slots = 2 * k  # live tracks at once: this frame's and those waiting out a gap
+    big = jnp.asarray(jnp.inf, concurrences.locations.dtype)
+
+    def frame(carry, inputs):
+        track_id, track_loc, unseen, next_id = carry
+        locations, valid, values = inputs
+        order = jnp.argsort(jnp.where(valid, -values, jnp.inf))
+        live = (track_id >= 0) & (unseen <= max_gap)
+
+        def assign(j, state):
+            ids_out, taken, track_id, track_loc, next_id = state
+            m = order[j]
+            dist = jnp.linalg.norm(track_loc - locations[m], axis=-1)
+            dist = jnp.where(live & ~taken & (dist <= max_distance), dist, big)
+            best = jnp.argmin(dist)
+            matched = valid[m] & jnp.isfinite(dist[best])
+            free = jnp.argmax(~live & ~taken)  # a dead or empty slot for a newborn
+            slot = jnp.where(matched, best, free)
+            born = valid[m] & ~matched
+            new_id = jnp.where(matched, track_id[slot], next_id)
+            ids_out = ids_out.at[m].set(jnp.where(valid[m], new_id, -1))
+            taken = taken.at[slot].set(taken[slot] | valid[m])
+            track_id = track_id.at[slot].set(jnp.where(valid[m], new_id, track_id[slot]))
+            track_loc = track_loc.at[slot].set(jnp.where(valid[m], locations[m], track_loc[slot]))
+            return ids_out, taken, track_id, track_loc, next_id + born.astype(jnp.int32)
+
+        ids_out = jnp.full(k, -1, jnp.int32)
+        ids_out, taken, track_id, track_loc, next_id = jax.lax.fori_loop(
+            0, k, assign, (ids_out, jnp.zeros(slots, bool), track_id, track_loc, next_id)
+        )
+        unseen = jnp.where(taken, 0, unseen + 1)
+        track_id = jnp.where(unseen > max_gap, -1, track_id)
+        return (track_id, track_loc, unseen, next_id), ids_out
+
+    init = (
+        jnp.full(slots, -1, jnp.int32),
+        jnp.zeros((slots, 3), concurrences.locations.dtype),
+        jnp.zeros(slots, jnp.int32),
+        jnp.int32(0),
+    )
+    (_, _, _, num), ids = jax.lax.scan(
+        frame, init, (concurrences.locations, concurrences.valid, concurrences.field_values)
+    )
+    return Tracks(track_ids=ids, num_tracks=num)

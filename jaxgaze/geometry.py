@@ -1,0 +1,174 @@
+"""Shared geometry: directions, angles, rotations and the perspective distance.
+
+Conventions (see ``docs/conventions.md``):
+
+* Frames are right-handed. *World* is the scene frame (z up, metres). *Head* and
+  *camera* frames have +x forward (the primary gaze direction), +y left, +z up.
+* Angles are radians. Only names ending in ``_deg`` hold degrees.
+* ``yaw`` turns about +z, positive to the left (from +x toward +y); ``pitch`` is
+  elevation, positive up (toward +z).
+* A rotation matrix ``R_world_from_head`` maps head-frame vectors to world:
+  ``v_world = R_world_from_head @ v_head``. Quaternions are ``(w, x, y, z)``,
+  scalar first, unit norm, and represent the same active rotation.
+
+Every function works on a single item; lift it with ``jax.vmap`` or rely on the
+broadcasting noted in each docstring.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+__all__ = [
+    "unit",
+    "yaw_pitch_to_direction",
+    "direction_to_yaw_pitch",
+    "angle_between",
+    "deg_to_rad",
+    "rad_to_deg",
+    "quaternion_to_rotation_matrix",
+    "rotation_matrix_to_quaternion",
+    "axis_angle_to_rotation_matrix",
+    "orthonormal_basis",
+    "ray_depth",
+    "perspective_distance",
+]
+
+
+def _tiny(x: Array) -> Array:
+    return jnp.finfo(jnp.result_type(x, jnp.float32)).tiny
+
+
+def unit(v: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+    """``v / ‖v‖`` along the last axis. Zero vectors stay zero (no NaN)."""
+    norm = jnp.linalg.norm(v, axis=-1, keepdims=True)
+    return v / jnp.maximum(norm, _tiny(v))
+
+
+def deg_to_rad(angle_deg):
+    """Degrees → radians."""
+    return jnp.deg2rad(angle_deg)
+
+
+def rad_to_deg(angle):
+    """Radians → degrees."""
+    return jnp.rad2deg(angle)
+
+
+def yaw_pitch_to_direction(yaw: Float[Array, "..."], pitch: Float[Array, "..."]) -> Float[Array, "... 3"]:
+    """Unit direction from yaw (about +z, left positive) and pitch (up positive).
+
+    ``(cos p cos y, cos p sin y, sin p)``; ``yaw = pitch = 0`` is +x. Broadcasts.
+    """
+    yaw, pitch = jnp.broadcast_arrays(jnp.asarray(yaw), jnp.asarray(pitch))
+    cp = jnp.cos(pitch)
+    return jnp.stack([cp * jnp.cos(yaw), cp * jnp.sin(yaw), jnp.sin(pitch)], axis=-1)
+
+
+def direction_to_yaw_pitch(direction: Float[Array, "... 3"]) -> tuple[Array, Array]:
+    """Inverse of :func:`yaw_pitch_to_direction` (the direction need not be unit).
+
+    Returns ``(yaw, pitch)`` with yaw in (−π, π] and pitch in [−π/2, π/2].
+    """
+    x, y, z = direction[..., 0], direction[..., 1], direction[..., 2]
+    return jnp.arctan2(y, x), jnp.arctan2(z, jnp.hypot(x, y))
+
+
+def angle_between(a: Float[Array, "... 3"], b: Float[Array, "... 3"]) -> Float[Array, "..."]:
+    """Angle in radians between two directions, in [0, π].
+
+    Uses ``atan2(‖a×b‖, a·b)``, which stays accurate for tiny and near-π angles
+    where ``arccos`` of the dot product loses precision.
+    """
+    cross = jnp.linalg.norm(jnp.cross(a, b), axis=-1)
+    dot = jnp.sum(a * b, axis=-1)
+    return jnp.arctan2(cross, dot)
+
+
+def quaternion_to_rotation_matrix(q: Float[Array, "... 4"]) -> Float[Array, "... 3 3"]:
+    """Unit quaternion ``(w, x, y, z)`` → rotation matrix (normalises ``q`` first)."""
+    q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def rotation_matrix_to_quaternion(R: Float[Array, "3 3"]) -> Float[Array, "4"]:
+    """Rotation matrix → unit quaternion ``(w, x, y, z)`` with ``w ≥ 0``.
+
+    Shepperd's method: take the largest of the four candidate pivots so the
+    division is always by a number ≥ 1/2. Single matrix; ``vmap`` for batches.
+    """
+    t = jnp.trace(R)
+    candidates = jnp.stack(
+        [
+            jnp.array([1 + t, R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]),
+            jnp.array([R[2, 1] - R[1, 2], 1 + 2 * R[0, 0] - t, R[0, 1] + R[1, 0], R[0, 2] + R[2, 0]]),
+            jnp.array([R[0, 2] - R[2, 0], R[0, 1] + R[1, 0], 1 + 2 * R[1, 1] - t, R[1, 2] + R[2, 1]]),
+            jnp.array([R[1, 0] - R[0, 1], R[0, 2] + R[2, 0], R[1, 2] + R[2, 1], 1 + 2 * R[2, 2] - t]),
+        ]
+    )
+    pivots = jnp.array([1 + t, 1 + 2 * R[0, 0] - t, 1 + 2 * R[1, 1] - t, 1 + 2 * R[2, 2] - t])
+    q = candidates[jnp.argmax(pivots)]
+    q = q / jnp.linalg.norm(q)
+    return jnp.where(q[0] < 0, -q, q)
+
+
+def axis_angle_to_rotation_matrix(rotation_vector: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
+    """Rodrigues: rotation vector ``θ a`` (axis ``a``, angle θ in radians) → matrix.
+
+    Uses the quaternion ``(cos θ/2, sin(θ/2) a)`` so that θ → 0 is smooth.
+    """
+    theta = jnp.linalg.norm(rotation_vector, axis=-1, keepdims=True)
+    half = 0.5 * theta
+    # sin(θ/2)/θ → 1/2 as θ → 0; the double where keeps gradients finite.
+    safe = jnp.where(theta > 1e-8, theta, 1.0)
+    scale = jnp.where(theta > 1e-8, jnp.sin(half) / safe, 0.5 - theta**2 / 48.0)
+    q = jnp.concatenate([jnp.cos(half), scale * rotation_vector], axis=-1)
+    return quaternion_to_rotation_matrix(q)
+
+
+def orthonormal_basis(v: Float[Array, "3"]) -> tuple[Array, Array]:
+    """Two unit vectors ``u1, u2`` with ``(v, u1, u2)`` right-handed orthonormal.
+
+    ``v`` must be unit. Branch-free (Duff et al. 2017, "Building an orthonormal
+    basis, revisited"), so it is smooth and vmappable.
+    """
+    x, y, z = v[0], v[1], v[2]
+    sign = jnp.where(z >= 0, 1.0, -1.0).astype(v.dtype)
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    u1 = jnp.array([1 + sign * x * x * a, sign * b, -sign * x])
+    u2 = jnp.array([b, sign + y * y * a, -y])
+    return u1, u2
+
+
+def ray_depth(origin: Float[Array, "3"], direction: Float[Array, "3"], x: Float[Array, "3"]) -> Array:
+    """Depth of ``x`` along a ray, ``t = vᵀ(x − p)`` (Park et al. 2012, eq. 4)."""
+    return jnp.dot(direction, x - origin)
+
+
+def perspective_distance(
+    origin: Float[Array, "3"], direction: Float[Array, "3"], x: Float[Array, "3"]
+) -> tuple[Float[Array, "3"], Array]:
+    """Perspective distance vector ``d(l, x)`` of Park et al. (2012), eq. 4.
+
+    With ``t = vᵀ(x − p)`` and the projection ``x̂ = p + t v``,
+    ``d = (x − x̂) / t``: the offset of ``x`` from the ray divided by its depth,
+    i.e. the tangent of the angle at the eye between the ray and ``x``.
+
+    Returns ``(d, in_front)``. Behind the eye (``t ≤ 0``) the paper sets
+    ``d = ∞``; here ``d`` is returned as zeros and ``in_front`` is ``False`` so
+    callers can mask without producing inf/NaN in values or gradients.
+    """
+    t = ray_depth(origin, direction, x)
+    in_front = t > 0
+    safe_t = jnp.where(in_front, t, 1.0)
+    offset = x - origin - t * direction
+    d = jnp.where(in_front, offset / safe_t, 0.0)
+    return d, in_front

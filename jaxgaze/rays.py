@@ -1,0 +1,146 @@
+"""Primary gaze rays: the validated input type of the cone and concurrence models."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from jaxgaze.geometry import unit
+
+__all__ = ["GazeRays"]
+
+_MIN_DIRECTION_NORM = 1e-9
+
+
+def _is_concrete(*arrays) -> bool:
+    return not any(isinstance(a, jax.core.Tracer) for a in arrays)
+
+
+def _first_bad(bad: np.ndarray) -> str:
+    index = tuple(int(i) for i in np.argwhere(bad)[0])
+    return str(index[0]) if len(index) == 1 else str(index)
+
+
+class GazeRays(eqx.Module):
+    """Primary gaze rays ``l_i = (p_i, v_i)`` in the **world** frame (metres).
+
+    Park et al. (2012), Sec. 3.1: ``p`` is the centre of the eyes, ``v`` the
+    primary gaze direction, and the bandwidth ``h`` the standard deviation of
+    the eye-in-head deviation on the plane at unit depth (radians, small-angle).
+
+    Shapes carry any number of leading batch axes (e.g. frames):
+    ``origins (..., N, 3)``, ``directions (..., N, 3)``, ``bandwidth`` scalar or
+    ``(..., N)``, ``mask (..., N)`` (``True`` = a real ray; ``False`` = padding).
+
+    On construction directions are normalised, the bandwidth is broadcast to
+    ``(..., N)``, and concrete inputs are validated: a ``ValueError`` names the
+    field and the first offending ray for NaN/inf, a zero-length direction, a
+    non-positive bandwidth or mismatched shapes. Padded rays are not checked
+    and are replaced by a harmless placeholder so that no NaN can leak.
+    """
+
+    origins: Float[Array, "... N 3"]
+    directions: Float[Array, "... N 3"]
+    bandwidth: Float[Array, "... N"]
+    mask: Bool[Array, "... N"]
+
+    def __init__(self, origins, directions, bandwidth=0.05, mask=None):
+        origins = jnp.asarray(origins)
+        directions = jnp.asarray(directions)
+        if not jnp.issubdtype(origins.dtype, jnp.floating):
+            origins = origins.astype(jnp.result_type(float))
+        dtype = jnp.result_type(origins.dtype, directions.dtype, jnp.float32)
+        origins = origins.astype(dtype)
+        directions = directions.astype(dtype)
+        bandwidth = jnp.asarray(bandwidth, dtype=dtype)
+
+        if origins.ndim < 2 or origins.shape[-1] != 3:
+            raise ValueError(f"GazeRays: origins must have shape (..., N, 3), got {origins.shape}")
+        if directions.shape != origins.shape:
+            raise ValueError(
+                f"GazeRays: directions shape {directions.shape} does not match origins shape {origins.shape}"
+            )
+        ray_shape = origins.shape[:-1]
+        if mask is None:
+            mask = jnp.ones(ray_shape, dtype=bool)
+        mask = jnp.asarray(mask)
+        if mask.shape != ray_shape:
+            raise ValueError(f"GazeRays: mask shape {mask.shape} must be {ray_shape} (one entry per ray)")
+        mask = mask.astype(bool)
+        try:
+            bandwidth = jnp.broadcast_to(bandwidth, ray_shape)
+        except ValueError:
+            raise ValueError(
+                f"GazeRays: bandwidth shape {bandwidth.shape} must be a scalar or {ray_shape} (one per ray)"
+            ) from None
+
+        if _is_concrete(origins, directions, bandwidth, mask):
+            _validate(np.asarray(origins), np.asarray(directions), np.asarray(bandwidth), np.asarray(mask))
+
+        placeholder = jnp.zeros_like(directions).at[..., 0].set(1.0)
+        self.origins = jnp.where(mask[..., None], origins, 0.0)
+        self.directions = jnp.where(mask[..., None], unit(directions), placeholder)
+        self.bandwidth = jnp.where(mask, bandwidth, 1.0)
+        self.mask = mask
+
+    @property
+    def num_rays(self) -> int:
+        """Number of ray slots ``N`` (padding included)."""
+        return self.origins.shape[-2]
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        """Leading batch axes, e.g. ``(T,)`` for a recording of T frames."""
+        return self.origins.shape[:-2]
+
+    def __getitem__(self, index) -> "GazeRays":
+        """Index the batch axes, e.g. ``rays[t]`` is frame ``t``."""
+        if not self.batch_shape:
+            raise IndexError("GazeRays: a single frame has no batch axis to index")
+        return jax.tree_util.tree_map(lambda a: a[index], self)
+
+    @classmethod
+    def stack(cls, frames: Sequence["GazeRays"]) -> "GazeRays":
+        """Stack single-frame rays into a padded recording ``(T, N_max)``.
+
+        Frames may hold different numbers of people; missing slots are masked.
+        """
+        if len(frames) == 0:
+            raise ValueError("GazeRays.stack: no frames given")
+        for i, f in enumerate(frames):
+            if f.batch_shape:
+                raise ValueError(f"GazeRays.stack: frame {i} already has batch shape {f.batch_shape}")
+        n_max = max(max(f.num_rays for f in frames), 1)
+
+        def pad(a):
+            return jnp.pad(a, [(0, n_max - a.shape[0])] + [(0, 0)] * (a.ndim - 1))
+
+        return cls(
+            jnp.stack([pad(f.origins) for f in frames]),
+            jnp.stack([pad(f.directions) for f in frames]),
+            jnp.stack([pad(f.bandwidth) for f in frames]),
+            jnp.stack([pad(f.mask) for f in frames]),
+        )
+
+
+def _validate(origins: np.ndarray, directions: np.ndarray, bandwidth: np.ndarray, mask: np.ndarray) -> None:
+    for name, values in (("origins", origins), ("directions", directions)):
+        bad = ~np.all(np.isfinite(values), axis=-1) & mask
+        if bad.any():
+            raise ValueError(f"GazeRays: {name} of ray {_first_bad(bad)} is not finite (NaN or inf)")
+    bad = ~np.isfinite(bandwidth) & mask
+    if bad.any():
+        raise ValueError(f"GazeRays: bandwidth of ray {_first_bad(bad)} is not finite (NaN or inf)")
+    bad = (np.linalg.norm(directions, axis=-1) < _MIN_DIRECTION_NORM) & mask
+    if bad.any():
+        raise ValueError(f"GazeRays: direction of ray {_first_bad(bad)} has zero length")
+    bad = (bandwidth <= 0) & mask
+    if bad.any():
+        raise ValueError(
+            f"GazeRays: bandwidth of ray {_first_bad(bad)} is {float(bandwidth[bad][0])}; it must be positive (radians)"
+        )
