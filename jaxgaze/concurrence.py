@@ -306,11 +306,21 @@ def _concurrences_one_frame(
     )
     (_, membership, modes, mode_conv, count), _ = jax.lax.scan(visit, init, order)
     valid = jnp.arange(max_modes) < count
-    member_mask = membership[None, :] == jnp.arange(max_modes)[:, None]
+    refine = jax.vmap(lambda m, x0: _refine_and_laplace(rays, m, x0, prior_scale, refine_steps))
+    slots = jnp.arange(max_modes)[:, None]
 
-    locations, covariances = jax.vmap(
-        lambda m, x0: _refine_and_laplace(rays, m, x0, prior_scale, refine_steps)
-    )(member_mask, modes)
+    # The mixture mode sits where a subset of rays crosses tightly, so a true
+    # member with a large residual can lie outside the claim radius there. Claim
+    # the still-unclaimed rays again at each mode's refined (maximum-likelihood)
+    # location, nearest mode first, and refine once more.
+    first, _ = refine(membership[None, :] == slots, modes)
+    dist, ok = jax.vmap(lambda x: _whitened_distances(rays, x))(first)
+    dist = jnp.where(valid[:, None] & ok & (dist < claim_bandwidths), dist, jnp.inf)
+    nearest = jnp.argmin(dist, axis=0)
+    late = (membership < 0) & jnp.isfinite(jnp.min(dist, axis=0))
+    membership = jnp.where(late, nearest, membership)
+    member_mask = membership[None, :] == slots
+    locations, covariances = refine(member_mask, first)
     axes, semi = jax.vmap(lambda x: _region(rays, x))(modes)
     values = jax.vmap(lambda x: _field_value(rays, x))(locations)
 
@@ -389,7 +399,7 @@ def find_concurrences(
     *,
     seed_depths=DEFAULT_SEED_DEPTHS,
     min_rays: int = 2,
-    claim_bandwidths: float = 3.0,
+    claim_bandwidths: float = 4.0,
     dominance: float = 0.9,
     merge_radius: float = 0.3,
     tol: float = 1e-4,
@@ -421,15 +431,34 @@ def find_concurrences(
             f"find_concurrences takes one frame; rays have batch shape {rays.batch_shape}. "
             "Use find_concurrences_over_frames for a recording."
         )
-    depths, static = _options(rays, seed_depths, min_rays, claim_bandwidths, dominance, merge_radius, tol,
-                              max_iter, max_modes, prior_scale, refine_steps)
-    if static["max_modes"] == 0:
+    options = (seed_depths, min_rays, claim_bandwidths, dominance, merge_radius, tol, max_iter, max_modes,
+               prior_scale, refine_steps)
+    if _options(rays, *options)[1]["max_modes"] == 0:
         return _empty((), rays.num_rays, rays.origins.dtype)
-    result = _one_frame_jit(rays, depths, **static)
+    n = rays.num_rays
+    # Pad to a multiple of 8 rays so that scenes of similar size share one compilation;
+    # padded rays are masked and can never be claimed, so K stays ≤ n // min_rays.
+    padded = _pad_rays(rays, -(-n // _RAY_BUCKET) * _RAY_BUCKET)
+    depths, static = _options(padded, *options)
+    result = _one_frame_jit(padded, depths, **static)
     keep = np.asarray(result.valid)
     return Concurrences(
-        **{name: (value if name == "membership" else value[keep]) for name, value in result._asdict().items()}
+        **{
+            name: (value[:n] if name == "membership" else value[keep])
+            for name, value in result._asdict().items()
+        }
     )
+
+
+_RAY_BUCKET = 8
+
+
+def _pad_rays(rays: GazeRays, n: int) -> GazeRays:
+    extra = n - rays.num_rays
+    if extra == 0:
+        return rays
+    pad = lambda a: jnp.concatenate([a, jnp.zeros((extra,) + a.shape[1:], a.dtype)])  # noqa: E731
+    return GazeRays(pad(rays.origins), pad(rays.directions), pad(rays.bandwidth), pad(rays.mask))
 
 
 def find_concurrences_over_frames(
@@ -437,7 +466,7 @@ def find_concurrences_over_frames(
     *,
     seed_depths=DEFAULT_SEED_DEPTHS,
     min_rays: int = 2,
-    claim_bandwidths: float = 3.0,
+    claim_bandwidths: float = 4.0,
     dominance: float = 0.9,
     merge_radius: float = 0.3,
     tol: float = 1e-4,

@@ -41,9 +41,16 @@ def _tiny(x: Array) -> Array:
 
 
 def unit(v: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
-    """``v / ‖v‖`` along the last axis. Zero vectors stay zero (no NaN)."""
-    norm = jnp.linalg.norm(v, axis=-1, keepdims=True)
-    return v / jnp.maximum(norm, _tiny(v))
+    """``v / ‖v‖`` along the last axis. Zero vectors stay zero (no NaN).
+
+    The gradient at a zero vector is zero rather than NaN (double ``where``:
+    the square root is never taken of 0).
+    """
+    v = jnp.asarray(v)
+    sq = jnp.sum(v * v, axis=-1, keepdims=True)
+    nonzero = sq > _tiny(v)
+    norm = jnp.sqrt(jnp.where(nonzero, sq, 1.0))
+    return jnp.where(nonzero, v / norm, jnp.zeros_like(v))
 
 
 def deg_to_rad(angle_deg):
@@ -81,7 +88,11 @@ def angle_between(a: Float[Array, "... 3"], b: Float[Array, "... 3"]) -> Float[A
     Uses ``atan2(‖a×b‖, a·b)``, which stays accurate for tiny and near-π angles
     where ``arccos`` of the dot product loses precision.
     """
-    cross = jnp.linalg.norm(jnp.cross(a, b), axis=-1)
+    c = jnp.cross(a, b)
+    cross_sq = jnp.sum(c * c, axis=-1)
+    # ‖a×b‖ with a finite (zero) gradient where a ∥ b instead of NaN.
+    nonzero = cross_sq > 0
+    cross = jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, cross_sq, 1.0)), 0.0)
     dot = jnp.sum(a * b, axis=-1)
     return jnp.arctan2(cross, dot)
 
@@ -124,12 +135,15 @@ def axis_angle_to_rotation_matrix(rotation_vector: Float[Array, "... 3"]) -> Flo
 
     Uses the quaternion ``(cos θ/2, sin(θ/2) a)`` so that θ → 0 is smooth.
     """
-    theta = jnp.linalg.norm(rotation_vector, axis=-1, keepdims=True)
-    half = 0.5 * theta
-    # sin(θ/2)/θ → 1/2 as θ → 0; the double where keeps gradients finite.
-    safe = jnp.where(theta > 1e-8, theta, 1.0)
-    scale = jnp.where(theta > 1e-8, jnp.sin(half) / safe, 0.5 - theta**2 / 48.0)
-    q = jnp.concatenate([jnp.cos(half), scale * rotation_vector], axis=-1)
+    rotation_vector = jnp.asarray(rotation_vector)
+    theta_sq = jnp.sum(rotation_vector * rotation_vector, axis=-1, keepdims=True)
+    # sin(θ/2)/θ → 1/2 and cos(θ/2) → 1 as θ → 0. θ is never formed as √0 and
+    # the double where keeps gradients finite (no NaN) at θ = 0.
+    large = theta_sq > 1e-16
+    safe = jnp.sqrt(jnp.where(large, theta_sq, 1.0))
+    scale = jnp.where(large, jnp.sin(0.5 * safe) / safe, 0.5 - theta_sq / 48.0)
+    w = jnp.where(large, jnp.cos(0.5 * safe), 1.0 - theta_sq / 8.0)
+    q = jnp.concatenate([w, scale * rotation_vector], axis=-1)
     return quaternion_to_rotation_matrix(q)
 
 
@@ -137,7 +151,9 @@ def orthonormal_basis(v: Float[Array, "3"]) -> tuple[Array, Array]:
     """Two unit vectors ``u1, u2`` with ``(v, u1, u2)`` right-handed orthonormal.
 
     ``v`` must be unit. Branch-free (Duff et al. 2017, "Building an orthonormal
-    basis, revisited"), so it is smooth and vmappable.
+    basis, revisited"), so it is vmappable and accurate near ±z. It is smooth
+    within each hemisphere ``z ≥ 0`` and ``z < 0`` but jumps at ``z = 0``: no
+    continuous tangent frame exists on the whole sphere.
     """
     x, y, z = v[0], v[1], v[2]
     sign = jnp.where(z >= 0, 1.0, -1.0).astype(v.dtype)

@@ -138,7 +138,7 @@ def _validate(origins: np.ndarray, directions: np.ndarray, bandwidth: np.ndarray
         raise ValueError(f"GazeRays: bandwidth of ray {_first_bad(bad)} is not finite (NaN or inf)")
     bad = (np.linalg.norm(directions, axis=-1) < _MIN_DIRECTION_NORM) & mask
     if bad.any():
-        raise ValueError(f"GazeRays: direction of ray {_first_bad(bad)} has zero length")
+        raise ValueError(f"GazeRays: directions of ray {_first_bad(bad)} has zero length")
     bad = (bandwidth <= 0) & mask
     if bad.any():
         raise ValueError(

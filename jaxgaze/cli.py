@@ -1,0 +1,557 @@
+"""Command-line interface: ``jaxgaze demo`` and ``jaxgaze concurrences``.
+
+``jaxgaze concurrences INPUT.csv --out OUT.csv`` finds the gaze concurrences
+(Park et al. 2012) of every frame of a recording of primary gaze rays;
+``jaxgaze demo`` runs the same pipeline on a simulated meeting and compares
+it with the truth. Errors in the input are reported as one line on stderr,
+``jaxgaze: error: <what> (<file>:<line>)``, with exit status 2, and never
+leave a partial output file behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import math
+import os
+import sys
+import tempfile
+import time
+
+__all__ = ["main", "read_rays_csv", "CSV_COLUMNS", "OUTPUT_COLUMNS"]
+
+#: Required input columns (a ``bandwidth`` column is optional).
+CSV_COLUMNS = ("frame", "person", "ox", "oy", "oz", "dx", "dy", "dz")
+#: Output columns, one row per (frame, mode).
+OUTPUT_COLUMNS = ("frame", "mode", "x", "y", "z", "var_x", "var_y", "var_z", "num_rays", "field_value")
+
+_DEFAULT_BANDWIDTH = 0.05
+_DEFAULT_CHUNK = 32
+_MIN_DIRECTION_NORM = 1e-9
+_FLOAT32_MAX = 3.4028234e38
+
+
+class CLIError(Exception):
+    """An error to report as ``jaxgaze: error: <what> (<file>:<line>)`` with exit status 2."""
+
+    def __init__(self, what: str, file: str | None = None, line: int | None = None):
+        super().__init__(what)
+        self.what = " ".join(str(what).split())  # always one line
+        self.file = file
+        self.line = line
+
+    def __str__(self) -> str:
+        if self.file is None:
+            return self.what
+        where = self.file if self.line is None else f"{self.file}:{self.line}"
+        return f"{self.what} ({where})"
+
+
+# ---------------------------------------------------------------------------
+# Argument parsing
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text!r}")
+    return value
+
+
+def _int_at_least(minimum: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {value}")
+        return value
+
+    parse.__name__ = f"integer >= {minimum}"
+    return parse
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from jaxgaze import __version__
+
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bar (it is also off when stderr is not a terminal)")
+    common.add_argument("--chunk", type=_int_at_least(1), default=_DEFAULT_CHUNK, metavar="F",
+                        help=f"frames processed per compiled batch (default {_DEFAULT_CHUNK})")
+
+    parser = argparse.ArgumentParser(
+        prog="jaxgaze",
+        description="Gaze concurrences (joint attention) from primary gaze rays, in JAX.",
+        epilog="Run 'jaxgaze <command> -h' for the options of a command.",
+    )
+    parser.add_argument("--version", action="version", version=f"jaxgaze {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="<command>", required=True)
+
+    demo = sub.add_parser(
+        "demo", parents=[common],
+        help="simulate a meeting, find and track its concurrences, compare with the truth",
+        description="Simulate the 'meeting' scene, find the gaze concurrences of every frame, track them, "
+                    "print a per-frame table against the truth and write a figure.",
+    )
+    demo.add_argument("--frames", type=_int_at_least(1), default=None, metavar="N",
+                      help="number of frames (default: the preset's)")
+    demo.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default 0)")
+    demo.add_argument("--figure", default="jaxgaze_demo.png", metavar="PATH",
+                      help="where to write the figure (default jaxgaze_demo.png)")
+    demo.set_defaults(func=_cmd_demo)
+
+    conc = sub.add_parser(
+        "concurrences", parents=[common],
+        help="find the gaze concurrences of every frame of a CSV of primary gaze rays",
+        description="Read primary gaze rays from INPUT (CSV with header columns "
+                    + ", ".join(CSV_COLUMNS)
+                    + " and optionally bandwidth; world frame, metres, radians) and write one row per "
+                      "(frame, mode) to OUT: " + ", ".join(OUTPUT_COLUMNS) + ". "
+                    "Frames without a concurrence give no row.",
+    )
+    conc.add_argument("input", metavar="INPUT.csv", help="primary gaze rays, one row per (frame, person)")
+    conc.add_argument("--out", required=True, metavar="OUT.csv", help="output CSV (replaced only on success)")
+    conc.add_argument("--min-rays", type=_int_at_least(2), default=2, metavar="R",
+                      help="fewest rays a concurrence must claim (default 2)")
+    conc.add_argument("--bandwidth", type=_positive_float, default=_DEFAULT_BANDWIDTH, metavar="H",
+                      help=f"cone bandwidth h (rad) of every ray when INPUT has no bandwidth column "
+                           f"(default {_DEFAULT_BANDWIDTH})")
+    conc.set_defaults(func=_cmd_concurrences)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``jaxgaze`` command; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)  # usage errors: argparse prints them and exits 2
+    try:
+        return int(args.func(args) or 0)
+    except CLIError as error:
+        print(f"jaxgaze: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("jaxgaze: interrupted", file=sys.stderr)
+        return 130
+
+
+def _progress(args) -> bool:
+    if args.quiet:
+        return False
+    try:
+        return sys.stderr.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+# ---------------------------------------------------------------------------
+# Input
+
+
+def _parse_float(cell: str, column: str, path: str, line: int) -> float:
+    text = cell.strip()
+    if not text:
+        raise CLIError(f"empty cell in column '{column}'", path, line)
+    try:
+        value = float(text)
+    except ValueError:
+        raise CLIError(f"column '{column}' is not a number: {cell!r}", path, line) from None
+    if not math.isfinite(value):
+        raise CLIError(f"column '{column}' is not finite: {cell!r}", path, line)
+    if abs(value) > _FLOAT32_MAX:
+        raise CLIError(f"column '{column}' is out of range (beyond float32): {cell!r}", path, line)
+    return value
+
+
+def _parse_frame(cell: str, path: str, line: int) -> int:
+    text = cell.strip()
+    if not text:
+        raise CLIError("empty cell in column 'frame'", path, line)
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        value = float(text)
+    except ValueError:
+        raise CLIError(f"column 'frame' is not a number: {cell!r}", path, line) from None
+    if not math.isfinite(value):
+        raise CLIError(f"column 'frame' is not finite: {cell!r}", path, line)
+    if not value.is_integer():
+        raise CLIError(f"column 'frame' must be an integer frame id, got {cell!r}", path, line)
+    return int(value)
+
+
+def _read_rows(path: str, default_bandwidth: float):
+    """Parse and check the CSV; returns ``{frame: [(person, origin, direction, bandwidth, line), ...]}``."""
+    try:
+        handle = open(path, newline="", encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise CLIError("input file not found", path) from None
+    except IsADirectoryError:
+        raise CLIError("input is a directory, not a CSV file", path) from None
+    except OSError as error:
+        raise CLIError(f"cannot read input: {error.strerror or error}", path) from None
+
+    frames: dict[int, list] = {}
+    seen: dict[tuple[int, str], int] = {}
+    reader = csv.reader(handle)
+    with handle:
+        try:
+            header = None
+            for row in reader:
+                if any(cell.strip() for cell in row):
+                    header = row
+                    break
+            if header is None:
+                raise CLIError("input is empty: expected a header row with columns " + ", ".join(CSV_COLUMNS),
+                               path, max(reader.line_num, 1))
+            header_line = reader.line_num
+            names = [cell.strip().lower() for cell in header]
+            duplicated = sorted({n for n in names if names.count(n) > 1 and n})
+            if duplicated:
+                raise CLIError(f"duplicate column '{duplicated[0]}' in the header", path, header_line)
+            missing = [c for c in CSV_COLUMNS if c not in names]
+            if missing:
+                raise CLIError(
+                    "missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
+                    + " in the header (need " + ", ".join(CSV_COLUMNS) + ")", path, header_line)
+            index = {name: names.index(name) for name in CSV_COLUMNS}
+            bw_index = names.index("bandwidth") if "bandwidth" in names else None
+
+            for row in reader:
+                line = reader.line_num
+                if not any(cell.strip() for cell in row):
+                    continue  # blank line
+                if len(row) != len(header):
+                    raise CLIError(f"expected {len(header)} fields as in the header, got {len(row)}", path, line)
+                frame = _parse_frame(row[index["frame"]], path, line)
+                person = row[index["person"]].strip()
+                if not person:
+                    raise CLIError("empty cell in column 'person'", path, line)
+                origin = tuple(_parse_float(row[index[c]], c, path, line) for c in ("ox", "oy", "oz"))
+                direction = tuple(_parse_float(row[index[c]], c, path, line) for c in ("dx", "dy", "dz"))
+                if bw_index is None:
+                    bandwidth = default_bandwidth
+                else:
+                    bandwidth = _parse_float(row[bw_index], "bandwidth", path, line)
+                    if bandwidth <= 0:
+                        raise CLIError(f"bandwidth must be positive (radians), got {row[bw_index].strip()}",
+                                       path, line)
+                if math.sqrt(sum(x * x for x in direction)) < _MIN_DIRECTION_NORM:
+                    raise CLIError("direction (dx, dy, dz) has zero length", path, line)
+                first = seen.setdefault((frame, person), line)
+                if first != line:
+                    raise CLIError(f"duplicate ray for frame {frame}, person '{person}' (first on line {first})",
+                                   path, line)
+                frames.setdefault(frame, []).append((person, origin, direction, bandwidth, line))
+        except csv.Error as error:
+            raise CLIError(f"malformed CSV: {error}", path, reader.line_num) from None
+        except UnicodeDecodeError:
+            raise CLIError("input is not UTF-8 text", path, reader.line_num + 1) from None
+        except OSError as error:
+            raise CLIError(f"cannot read input: {error.strerror or error}", path) from None
+    if not frames:
+        raise CLIError("no data rows after the header", path, header_line)
+    return frames
+
+
+def read_rays_csv(path: str, default_bandwidth: float = _DEFAULT_BANDWIDTH):
+    """Read a CSV of primary gaze rays into a padded recording.
+
+    Returns ``(frame_ids, persons, rays)``: the sorted frame ids ``(T,)``, the
+    person labels of each frame (in file order), and :class:`~jaxgaze.GazeRays`
+    of shape ``(T, N)`` with ``N`` the most people in any frame and the missing
+    slots masked, exactly as :meth:`GazeRays.stack` pads. Raises
+    :class:`CLIError` naming the file and line of the first bad row.
+    """
+    import numpy as np
+
+    from jaxgaze.rays import GazeRays
+
+    frames = _read_rows(path, default_bandwidth)
+    frame_ids = sorted(frames)
+    t, n = len(frame_ids), max(len(rows) for rows in frames.values())
+    origins = np.zeros((t, n, 3))
+    directions = np.zeros((t, n, 3))
+    directions[..., 0] = 1.0
+    bandwidth = np.ones((t, n))
+    mask = np.zeros((t, n), dtype=bool)
+    persons = []
+    for i, frame in enumerate(frame_ids):
+        rows = frames[frame]
+        persons.append([r[0] for r in rows])
+        k = len(rows)
+        origins[i, :k] = [r[1] for r in rows]
+        directions[i, :k] = [r[2] for r in rows]
+        bandwidth[i, :k] = [r[3] for r in rows]
+        mask[i, :k] = True
+    # One constructor call (the same padding as GazeRays.stack, without its per-frame cost).
+    try:
+        rays = GazeRays(origins, directions, bandwidth, mask)
+    except ValueError as error:
+        raise CLIError(str(error), path) from None
+    return frame_ids, persons, rays
+
+
+# ---------------------------------------------------------------------------
+# Computation
+
+
+def _pad_frames(rays, size: int):
+    """Pad a ``(T, N)`` recording to ``size`` frames with empty (fully masked) frames."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    extra = size - rays.batch_shape[0]
+    padded = jax.tree_util.tree_map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], extra, axis=0)]), rays)
+    mask = padded.mask.at[-extra:].set(False)
+    return eqx.tree_at(lambda r: r.mask, padded, mask)
+
+
+def find_concurrences_in_chunks(rays, *, chunk: int = _DEFAULT_CHUNK, progress: bool = False,
+                                desc: str = "concurrences", **options):
+    """:func:`~jaxgaze.find_concurrences_over_frames` over a long recording, ``chunk`` frames at a time.
+
+    Every call sees the same ``(chunk, N)`` shape (the last chunk is padded
+    with empty frames), so the vmapped computation compiles once. Returns a
+    :class:`~jaxgaze.Concurrences` of host (numpy) arrays, ``(T, K)``.
+    """
+    import numpy as np
+    from tqdm import tqdm
+
+    from jaxgaze.concurrence import Concurrences, find_concurrences_over_frames
+
+    total = rays.batch_shape[0]
+    size = max(1, min(int(chunk), total))
+    parts = []
+    with tqdm(total=total, unit="frame", desc=desc, disable=not progress, file=sys.stderr,
+              dynamic_ncols=True) as bar:
+        for start in range(0, total, size):
+            part = rays[start:start + size]
+            count = part.batch_shape[0]
+            if count < size:
+                part = _pad_frames(part, size)
+            result = find_concurrences_over_frames(part, **options)
+            parts.append(Concurrences(*(np.asarray(a)[:count] for a in result)))
+            bar.update(count)
+    return Concurrences(*(np.concatenate(fields, axis=0) for fields in zip(*parts)))
+
+
+# ---------------------------------------------------------------------------
+# Output
+
+
+@contextlib.contextmanager
+def _atomic_output(path: str, mode: str = "w"):
+    """Yield a temporary file next to ``path``; ``os.replace`` it onto ``path`` only on success."""
+    target = os.path.abspath(path)
+    directory = os.path.dirname(target)
+    try:
+        fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(target)}.", suffix=".tmp")
+    except OSError as error:
+        raise CLIError(f"cannot write output: {error.strerror or error}", path) from None
+    try:
+        try:
+            file_mode = os.stat(target).st_mode & 0o7777
+        except OSError:
+            umask = os.umask(0)
+            os.umask(umask)
+            file_mode = 0o666 & ~umask
+        os.chmod(tmp, file_mode)
+        if "b" in mode:
+            handle = os.fdopen(fd, mode)
+        else:
+            handle = os.fdopen(fd, mode, newline="", encoding="utf-8")
+        with handle:
+            yield handle
+        os.replace(tmp, target)
+    except OSError as error:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise CLIError(f"cannot write output: {error.strerror or error}", path) from None
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _fmt(value: float) -> str:
+    return format(float(value), ".9g")
+
+
+def write_concurrences_csv(handle, frame_ids, concurrences) -> int:
+    """Write one row per (frame, mode) of a padded ``(T, K)`` result; returns the number of rows."""
+    import numpy as np
+
+    writer = csv.writer(handle, lineterminator="\n")
+    writer.writerow(OUTPUT_COLUMNS)
+    valid = np.asarray(concurrences.valid)
+    locations = np.asarray(concurrences.locations)
+    variances = np.diagonal(np.asarray(concurrences.covariances), axis1=-2, axis2=-1)
+    num_rays = np.asarray(concurrences.num_rays)
+    values = np.asarray(concurrences.field_values)
+    rows = 0
+    for t, frame in enumerate(frame_ids):
+        for mode in np.flatnonzero(valid[t]):
+            writer.writerow(
+                [frame, int(mode), *map(_fmt, locations[t, mode]), *map(_fmt, variances[t, mode]),
+                 int(num_rays[t, mode]), _fmt(values[t, mode])]
+            )
+            rows += 1
+    return rows
+
+
+# ---------------------------------------------------------------------------
+# Commands
+
+
+def _check_output_directory(path: str, what: str = "output") -> None:
+    """Fail before any work if the output's directory does not exist."""
+    if not os.path.isdir(os.path.dirname(os.path.abspath(path))):
+        raise CLIError(f"cannot write {what}: directory does not exist", path)
+
+
+def _cmd_concurrences(args) -> int:
+    frame_ids, _, rays = read_rays_csv(args.input, args.bandwidth)
+    _check_output_directory(args.out)
+    try:
+        result = find_concurrences_in_chunks(rays, chunk=args.chunk, progress=_progress(args),
+                                             min_rays=args.min_rays)
+    except ValueError as error:
+        raise CLIError(str(error), args.input) from None
+    with _atomic_output(args.out) as handle:
+        rows = write_concurrences_csv(handle, frame_ids, result)
+    if not args.quiet:
+        print(f"jaxgaze: {rows} concurrence(s) in {len(frame_ids)} frame(s) written to {args.out}",
+              file=sys.stderr)
+    return 0
+
+
+def _figure_format(path: str) -> str:
+    """Image format from the figure path's extension; checked before any work is done."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    ext = os.path.splitext(path)[1].lstrip(".").lower()
+    supported = FigureCanvasAgg.get_supported_filetypes()
+    if ext not in supported:
+        raise CLIError(f"unsupported figure format '.{ext}'; use one of " + ", ".join(f".{e}" for e in supported),
+                       path)
+    _check_output_directory(path, "figure")
+    return ext
+
+
+def _phase_frames(phase) -> list[tuple[int, int]]:
+    """``[(phase, middle frame of its longest run)]`` for every phase of the story, in order."""
+    import numpy as np
+
+    phase = np.asarray(phase)
+    out = []
+    for p in dict.fromkeys(phase.tolist()):
+        frames = np.flatnonzero(phase == p)
+        out.append((int(p), int(frames[len(frames) // 2])))
+    return out
+
+
+def _demo_figure(scene, concurrences, tracks, frames_to_show, fmt: str, path: str) -> None:
+    import numpy as np
+    from matplotlib.figure import Figure
+
+    from jaxgaze.plotting import plot_counts, plot_top_view, plot_trajectories, top_view_bounds
+
+    truth = np.asarray(scene.concurrences)
+    truth_valid = np.asarray(scene.concurrence_valid)
+    lower, upper = top_view_bounds(scene.rays, truth.reshape(-1, 3), margin=0.6)
+    extent = (lower[0], upper[0], lower[1], upper[1])
+    top = len(frames_to_show)
+    fig = Figure(figsize=(4.6 * max(top, 2), 8.6), layout="constrained")
+    grid = fig.add_gridspec(2, max(top, 2) * 2)
+    for i, (p, t) in enumerate(frames_to_show):
+        ax = fig.add_subplot(grid[0, 2 * i:2 * i + 2])
+        one = concurrences.frame(t)
+        plot_top_view(
+            scene.rays[t], one, truth=truth[t][truth_valid[t]], ax=ax, extent=extent,
+            z_range=(lower[2], upper[2]), grid_shape=(96, 64, 24), colorbar=True,
+            title=f"phase {p}: frame {t} (t = {t / scene.fps:.1f} s)\n"
+                  f"K = {len(one.locations)}, true K = {int(truth_valid[t].sum())}",
+        )
+    half = max(top, 2)
+    ax = fig.add_subplot(grid[1, :half])
+    plot_trajectories(concurrences, tracks, ax=ax, fps=scene.fps)
+    ax = fig.add_subplot(grid[1, half:])
+    plot_counts(np.asarray(concurrences.count), np.asarray(scene.true_count), ax=ax, fps=scene.fps)
+    fig.suptitle(f"jaxgaze demo: simulated '{scene.name}' scene, {scene.num_frames} frames, "
+                 f"{scene.num_people} people")
+    with _atomic_output(path, "wb") as handle:
+        fig.savefig(handle, format=fmt, dpi=100)
+
+
+def _cmd_demo(args) -> int:
+    import jax
+    import numpy as np
+
+    from jaxgaze.concurrence import track_concurrences
+    from jaxgaze.metrics import evaluate, match_concurrences
+    from jaxgaze.simulate import simulate_scene
+
+    fmt = _figure_format(args.figure)
+    progress = _progress(args)
+    clock = time.perf_counter()
+    scene = simulate_scene(jax.random.key(args.seed), "meeting", num_frames=args.frames)
+    t_sim = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    concurrences = find_concurrences_in_chunks(scene.rays, chunk=args.chunk, progress=progress, desc=scene.name)
+    tracks = track_concurrences(concurrences)
+    t_find = time.perf_counter() - clock
+
+    truth = np.asarray(scene.concurrences)
+    truth_valid = np.asarray(scene.concurrence_valid)
+    valid = np.asarray(concurrences.valid)
+    locations = np.asarray(concurrences.locations)
+    counts = valid.sum(axis=1)
+    true_counts = truth_valid.sum(axis=1)
+
+    print(f"jaxgaze demo: '{scene.name}' scene, {scene.num_frames} frames at {scene.fps:g} fps, "
+          f"{scene.num_people} people, seed {args.seed}, bandwidth {scene.bandwidth:.3f} rad")
+    print(f"{'frame':>5} {'time_s':>6} {'K':>2} {'true_K':>6}  {'error_cm':<16} locations_m (x, y, z)")
+    for t in range(scene.num_frames):
+        est = locations[t][valid[t]]
+        match = match_concurrences(est, truth[t][truth_valid[t]])  # Hungarian
+        err = np.full(len(est), np.nan)
+        err[match.estimated] = 100.0 * match.distances
+        err_text = " ".join("-" if not np.isfinite(e) else f"{e:.1f}" for e in err) or "-"
+        loc_text = " ".join("({:.2f}, {:.2f}, {:.2f})".format(*x) for x in est) or "-"
+        print(f"{t:>5} {t / scene.fps:>6.1f} {counts[t]:>2} {true_counts[t]:>6}  {err_text:<16} {loc_text}")
+
+    clock = time.perf_counter()
+    _demo_figure(scene, concurrences, tracks, _phase_frames(scene.phase), fmt, args.figure)
+    t_fig = time.perf_counter() - clock
+
+    summary = evaluate(concurrences, scene, level=0.9)
+    correct = int(np.sum(counts == true_counts))
+    trajectories = tracks.trajectories(concurrences)
+    print("summary:")
+    print(f"  count accuracy: {correct}/{scene.num_frames} frames ({summary.count_accuracy:.1%}) "
+          "with K = true K")
+    if summary.num_matched:
+        print(f"  localisation error: median {100 * summary.median_error:.1f} cm, mean {100 * summary.mean_error:.1f}"
+              f" ± {100 * summary.std_error:.1f} cm over {summary.num_matched} matched concurrences")
+        print(f"  coverage: {summary.coverage:.1%} of true locations inside the 90% Laplace ellipsoid")
+    else:
+        print("  localisation error: no concurrence matched")
+    births = ", ".join(str(tr["birth"]) for tr in trajectories.values())
+    print(f"  tracks: {len(trajectories)} (born at frames {births or '-'})")
+    print(f"  figure: {args.figure}")
+    print(f"  time: simulate {t_sim:.1f} s, concurrences + tracking {t_find:.1f} s, figure {t_fig:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,292 @@
+"""Figures for gaze rays, the social saliency field and gaze concurrences.
+
+All functions draw with matplotlib's object API (no ``pyplot`` state is
+needed, so they work under the non-interactive ``Agg`` backend), accept an
+optional ``ax`` to draw into, and return the :class:`~matplotlib.figure.Figure`.
+Positions are world-frame metres; the top view looks down the ``z`` axis.
+
+Artists carry a ``gid`` (``artist.get_gid()``) so that figures can be inspected programmatically:
+``"modes"`` (one marker per concurrence), ``"truth"``, ``"eyes"``,
+``"mode ellipse"`` (one patch per concurrence), ``"saliency MIP"`` (the image),
+``"ray"``, ``"births"``, ``"deaths"``, ``"track <id>"``, ``"track <id> points"``, ``"K"`` and ``"true K"``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from matplotlib.colors import to_rgba
+from matplotlib.figure import Figure
+from matplotlib.patches import Ellipse
+
+from jaxgaze.cone import max_intensity_projection, saliency_field_grid
+from jaxgaze.rays import GazeRays
+
+__all__ = ["plot_top_view", "plot_trajectories", "plot_counts", "top_view_bounds", "ELLIPSE_LEVEL"]
+
+#: Probability mass inside the drawn covariance ellipses.
+ELLIPSE_LEVEL = 0.9
+# Quantile of the chi-square distribution with 2 degrees of freedom: -2 log(1 - p).
+_CHI2_2DOF = -2.0 * math.log(1.0 - ELLIPSE_LEVEL)
+
+_MODE_COLOUR = "tab:orange"
+_TRUTH_COLOUR = "cyan"
+
+
+def _new_axes(ax, figsize=(6.0, 5.0)):
+    if ax is not None:
+        return ax.figure, ax
+    fig = Figure(figsize=figsize, layout="constrained")
+    return fig, fig.add_subplot()
+
+
+def _valid_modes(concurrences):
+    """Host arrays ``(locations (K,3), covariances (K,3,3), membership (N,) or None)`` of one frame."""
+    if concurrences is None:
+        return np.zeros((0, 3)), np.zeros((0, 3, 3)), None
+    locations = np.asarray(concurrences.locations, dtype=float)
+    if locations.ndim != 2:
+        raise ValueError(
+            f"plot_top_view: concurrences must be one frame (K, 3), got locations of shape {locations.shape}; "
+            "use concurrences.frame(t)"
+        )
+    covariances = np.asarray(concurrences.covariances, dtype=float)
+    valid = np.asarray(concurrences.valid, dtype=bool)
+    membership = np.asarray(concurrences.membership)
+    if valid.shape == (locations.shape[0],) and not valid.all():
+        # A padded frame: keep the valid modes; membership indices stay valid
+        # because the real modes come first.
+        locations, covariances = locations[valid], covariances[valid]
+    return locations, covariances, membership
+
+
+def top_view_bounds(rays: GazeRays, points=None, margin: float = 0.5):
+    """Default box ``(lower, upper)`` for :func:`plot_top_view`: the eyes and ``points`` plus ``margin`` metres.
+
+    The z range always includes the floor (``z = 0``) up to just above the eyes.
+    """
+    origins = np.asarray(rays.origins, dtype=float)[np.asarray(rays.mask, dtype=bool)]
+    pts = [origins.reshape(-1, 3)]
+    if points is not None:
+        pts.append(np.asarray(points, dtype=float).reshape(-1, 3))
+    pts = np.concatenate(pts, axis=0)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) == 0:
+        pts = np.zeros((1, 3))
+    lower = pts.min(axis=0) - margin
+    upper = pts.max(axis=0) + margin
+    lower[2] = min(lower[2], 0.0)
+    upper[2] = max(upper[2], lower[2] + 2.0 * margin)
+    return lower, upper
+
+
+def plot_top_view(
+    rays_one_frame: GazeRays,
+    concurrences_one_frame=None,
+    truth=None,
+    ax=None,
+    extent=None,
+    *,
+    z_range=None,
+    grid_shape=(96, 96, 32),
+    ray_length=None,
+    title=None,
+    colorbar=True,
+):
+    """Top view of one frame: the saliency field's maximum-intensity projection, rays, modes and truth.
+
+    Args:
+        rays_one_frame: the frame's primary gaze rays, ``(N, 3)`` (world frame, m).
+        concurrences_one_frame: :class:`~jaxgaze.Concurrences` of that frame
+            (``find_concurrences`` or ``Concurrences.frame(t)``; padded modes
+            are dropped via ``valid``), or ``None``.
+        truth: optional ``(M, 3)`` true concurrence locations, drawn as crosses.
+        ax: axes to draw into; a new figure is made if ``None``.
+        extent: ``(xmin, xmax, ymin, ymax)`` in metres; by default the eyes,
+            modes and truth plus a 0.5 m margin.
+        z_range: ``(zmin, zmax)`` of the projected slab; by default from the
+            floor to just above the highest eye, mode or truth.
+        grid_shape: ``(nx, ny, nz)`` grid on which ``f`` is evaluated
+            (:func:`~jaxgaze.saliency_field_grid`); the image is its maximum over z.
+        ray_length: length (m) of the drawn rays; by default the box diagonal.
+        title: axes title.
+        colorbar: add a colour bar for ``f``.
+
+    The image is ``max_z f(x, y, z)`` shown with ``origin="lower"``, so
+    ``image[j, i]`` is the cell at ``(xs[i], ys[j])``. Each mode is a marker
+    with the ellipse holding 90 % of its Laplace posterior projected onto xy
+    (the marginal of ``covariances[:2, :2]``). Rays are drawn from the eye
+    centres, coloured by the mode they support (grey for none).
+    """
+    if not isinstance(rays_one_frame, GazeRays) or rays_one_frame.batch_shape:
+        raise ValueError("plot_top_view: rays_one_frame must be one frame of GazeRays, shape (N, 3); use rays[t]")
+    locations, covariances, membership = _valid_modes(concurrences_one_frame)
+    truth_np = None if truth is None else np.asarray(truth, dtype=float).reshape(-1, 3)
+
+    extra = [locations] + ([truth_np] if truth_np is not None else [])
+    lower, upper = top_view_bounds(rays_one_frame, np.concatenate(extra, axis=0))
+    if extent is not None:
+        if len(extent) != 4:
+            raise ValueError(f"plot_top_view: extent must be (xmin, xmax, ymin, ymax), got {extent}")
+        lower[:2] = extent[0], extent[2]
+        upper[:2] = extent[1], extent[3]
+    if z_range is not None:
+        lower[2], upper[2] = z_range
+
+    fig, ax = _new_axes(ax)
+    values, (xs, ys, _) = saliency_field_grid(rays_one_frame, lower, upper, tuple(grid_shape))
+    mip = np.asarray(max_intensity_projection(values, axis=2))
+    dx = float(xs[1] - xs[0]) if len(xs) > 1 else 1.0
+    dy = float(ys[1] - ys[0]) if len(ys) > 1 else 1.0
+    image = ax.imshow(
+        mip.T,
+        origin="lower",
+        extent=(lower[0] - dx / 2, upper[0] + dx / 2, lower[1] - dy / 2, upper[1] + dy / 2),
+        cmap="magma",
+        interpolation="nearest",
+        aspect="equal",
+        gid="saliency MIP",
+    )
+    if colorbar:
+        fig.colorbar(image, ax=ax, shrink=0.8, label="max$_z$ saliency $f$")
+
+    # Rays: a line from each eye centre along the xy projection of v, plus the eye.
+    mask = np.asarray(rays_one_frame.mask, dtype=bool)
+    origins = np.asarray(rays_one_frame.origins, dtype=float)[mask]
+    directions = np.asarray(rays_one_frame.directions, dtype=float)[mask]
+    length = float(np.linalg.norm(upper - lower)) if ray_length is None else float(ray_length)
+    member = membership[mask] if membership is not None and membership.shape == mask.shape else None
+    mode_colours = _track_colours(len(locations))
+    for i, (o, d) in enumerate(zip(origins, directions)):
+        k = -1 if member is None else int(member[i])
+        colour = mode_colours[k] if 0 <= k < len(locations) else "0.75"
+        end = o + length * d
+        ax.plot([o[0], end[0]], [o[1], end[1]], color=colour, lw=0.8, alpha=0.7, gid="ray")
+    if len(origins):
+        ax.quiver(
+            origins[:, 0], origins[:, 1], directions[:, 0], directions[:, 1],
+            color="white", angles="xy", scale_units="inches", scale=3.0, width=0.006, gid="gaze",
+        )
+        ax.scatter(origins[:, 0], origins[:, 1], s=25, c="white", edgecolors="black", zorder=3, gid="eyes")
+
+    # Modes with their 90 % covariance ellipse in xy.
+    for k, (loc, cov) in enumerate(zip(locations, covariances)):
+        width, height, angle = _ellipse_params(cov[:2, :2])
+        ax.add_patch(
+            Ellipse(loc[:2], width, height, angle=angle, fill=False, ec=mode_colours[k], lw=1.5,
+                    gid="mode ellipse", zorder=4)
+        )
+    ax.scatter(locations[:, 0], locations[:, 1], s=60, marker="o", c=mode_colours[: len(locations)] or None,
+               edgecolors="black", zorder=5, gid="modes",
+               label=f"concurrence ({ELLIPSE_LEVEL:.0%} ellipse)" if len(locations) else "_modes")
+    if truth_np is not None:
+        ax.scatter(truth_np[:, 0], truth_np[:, 1], s=70, marker="x", c=_TRUTH_COLOUR, linewidths=2,
+                   zorder=6, gid="truth",
+                   label="truth" if len(truth_np) else "_truth")
+
+    if len(locations) or (truth_np is not None and len(truth_np)):
+        ax.legend(fontsize="small", loc="best", framealpha=0.6)
+    ax.set_xlim(lower[0] - dx / 2, upper[0] + dx / 2)
+    ax.set_ylim(lower[1] - dy / 2, upper[1] + dy / 2)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(title if title is not None else f"top view: {len(locations)} concurrence(s)")
+    return fig
+
+
+def _ellipse_params(cov_xy: np.ndarray):
+    """Full width, height (m) and angle (degrees) of the ``ELLIPSE_LEVEL`` ellipse of a 2×2 covariance."""
+    cov_xy = 0.5 * (cov_xy + cov_xy.T)
+    if not np.all(np.isfinite(cov_xy)):
+        return 0.0, 0.0, 0.0
+    eigvals, eigvecs = np.linalg.eigh(cov_xy)
+    eigvals = np.clip(eigvals, 0.0, None)
+    width, height = 2.0 * np.sqrt(_CHI2_2DOF * eigvals[::-1])
+    angle = math.degrees(math.atan2(eigvecs[1, -1], eigvecs[0, -1]))
+    return float(width), float(height), angle
+
+
+def _track_colours(n: int) -> list:
+    palette = [to_rgba(f"C{i}") for i in range(10)]
+    return [palette[i % len(palette)] for i in range(n)]
+
+
+def plot_trajectories(concurrences_over_frames, tracks, ax=None, *, fps=None, title=None):
+    """Top view (xy) of concurrence trajectories, one colour per track, time as opacity.
+
+    Args:
+        concurrences_over_frames: padded ``(T, K)`` result of
+            :func:`~jaxgaze.find_concurrences_over_frames`.
+        tracks: :class:`~jaxgaze.Tracks` from :func:`~jaxgaze.track_concurrences`.
+        ax: axes to draw into; a new figure is made if ``None``.
+        fps: if given, the legend gives birth and death times in seconds.
+        title: axes title.
+
+    Each track is a line through its locations plus one dot per frame whose
+    opacity grows from 0.15 (frame 0) to 1 (last frame). A triangle marks each
+    birth (first frame of a track, collection ``"births"``) and a cross each
+    death (last frame of a track that ends before the recording does, ``"deaths"``).
+    """
+    fig, ax = _new_axes(ax)
+    trajectories = tracks.trajectories(concurrences_over_frames)
+    num_frames = int(np.asarray(concurrences_over_frames.locations).shape[0])
+    last = max(num_frames - 1, 1)
+    colours = _track_colours(max(trajectories.keys(), default=-1) + 1)
+    births, deaths = [], []
+    for track, traj in trajectories.items():
+        colour = colours[track]
+        xy = np.asarray(traj["locations"], dtype=float)[:, :2]
+        frames = np.asarray(traj["frames"])
+        if fps:
+            span = f"{traj['birth'] / fps:.1f}–{traj['death'] / fps:.1f} s"
+        else:
+            span = f"frames {traj['birth']}–{traj['death']}"
+        ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=1.0, alpha=0.6, label=f"track {track} ({span})",
+                gid=f"track {track}")
+        rgba = np.tile(np.asarray(colour), (len(frames), 1))
+        rgba[:, 3] = 0.15 + 0.85 * frames / last
+        ax.scatter(xy[:, 0], xy[:, 1], s=12, c=rgba, edgecolors="none", gid=f"track {track} points")
+        births.append((xy[0], colour))
+        if traj["death"] < num_frames - 1:
+            deaths.append((xy[-1], colour))
+    for points, marker, name in ((births, "^", "births"), (deaths, "X", "deaths")):
+        xy = np.array([p for p, _ in points]).reshape(-1, 2)
+        ax.scatter(xy[:, 0], xy[:, 1], s=80, marker=marker, c=[c for _, c in points] or None,
+                   edgecolors="black", zorder=5, gid=name, label=name if points else f"_{name}")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(title if title is not None else f"trajectories: {len(trajectories)} track(s), {num_frames} frames")
+    if trajectories:
+        ax.legend(fontsize="small", loc="best")
+    return fig
+
+
+def plot_counts(counts, true_counts=None, ax=None, *, fps=None, title=None):
+    """Number of concurrences ``K`` per frame, with the true count if known.
+
+    ``counts`` and ``true_counts`` are ``(T,)``. With ``fps`` the x axis is time (s).
+    """
+    fig, ax = _new_axes(ax, figsize=(6.0, 3.0))
+    counts = np.asarray(counts).reshape(-1)
+    t = np.arange(len(counts), dtype=float)
+    if fps:
+        t = t / fps
+    if true_counts is not None:
+        true_counts = np.asarray(true_counts).reshape(-1)
+        if true_counts.shape != counts.shape:
+            raise ValueError(f"plot_counts: true_counts shape {true_counts.shape} must match counts {counts.shape}")
+        ax.step(t, true_counts, where="mid", color="black", ls="--", lw=1.5, label="true K", gid="true K")
+    ax.step(t, counts, where="mid", color="tab:blue", lw=1.5, label="K", gid="K")
+    top = max(int(counts.max(initial=0)), int(true_counts.max(initial=0)) if true_counts is not None else 0)
+    ax.set_ylim(-0.3, top + 0.7)
+    ax.yaxis.get_major_locator().set_params(integer=True)
+    ax.set_xlabel("time (s)" if fps else "frame")
+    ax.set_ylabel("number of concurrences K")
+    if true_counts is not None:
+        ax.set_title(title if title is not None else f"count correct in {np.mean(counts == true_counts):.0%} of frames")
+        ax.legend(fontsize="small", loc="best")
+    elif title is not None:
+        ax.set_title(title)
+    return fig

@@ -1,0 +1,365 @@
+"""The ``jaxgaze`` command line: ``concurrences`` on CSV input, its error handling, and ``demo``.
+
+Commands run in-process through ``main([...])`` (sharing compiled work across
+tests), and once through ``python -m jaxgaze.cli`` to check the entry point.
+"""
+
+import csv
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import jaxgaze.rays
+from jaxgaze.cli import CSV_COLUMNS, OUTPUT_COLUMNS, main
+
+# Two points looked at by groups of people (world frame, metres).
+POINT_A = np.array([1.0, 0.5, 1.0])
+POINT_B = np.array([-1.5, 2.0, 0.8])
+
+# Eye centres around each point; every person looks exactly at their point.
+_EYES_A = [(2.6, 0.3, 1.6), (1.2, -1.2, 1.7), (-0.3, -0.4, 1.5), (2.4, 1.8, 1.65)]
+_EYES_B = [(-3.2, 1.6, 1.2), (-1.0, 3.6, 1.3), (-2.4, 3.5, 1.6), (-0.2, 2.9, 1.25)]
+_LONER = (0.0, 4.5, 1.6)  # looks away from everyone: one ray, no concurrence
+
+# frame id -> (eyes looking at A, eyes looking at B, loner present)
+SCENE = {
+    10: (_EYES_A[:3], _EYES_B[:3], False),
+    11: (_EYES_A[:2], _EYES_B[:4], True),
+    13: ([], _EYES_B[1:4], True),
+}
+EXPECTED = {10: [(POINT_A, 3), (POINT_B, 3)], 11: [(POINT_A, 2), (POINT_B, 4)], 13: [(POINT_B, 3)]}
+
+
+def scene_rows():
+    """CSV rows (frame, person, ox, oy, oz, dx, dy, dz), frames deliberately out of order."""
+    rows = []
+    for frame in (11, 13, 10):
+        eyes_a, eyes_b, loner = SCENE[frame]
+        people = [(f"a{i}", e, POINT_A) for i, e in enumerate(eyes_a)]
+        people += [(f"b{i}", e, POINT_B) for i, e in enumerate(eyes_b)]
+        if loner:
+            people.append(("loner", _LONER, np.array([0.0, 9.0, 1.6])))
+        for person, eye, target in people:
+            d = (target - np.asarray(eye)) * 1.7  # any length: the reader normalises
+            rows.append([frame, person, *eye, *(f"{x:.9f}" for x in d)])
+    return rows
+
+
+def write_csv(path, rows, header=CSV_COLUMNS):
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        if header is not None:
+            writer.writerow(header)
+        writer.writerows(rows)
+    return path
+
+
+def read_output(path):
+    with open(path, newline="") as f:
+        reader = csv.reader(f)
+        header = next(reader)
+        return header, list(reader)
+
+
+@pytest.fixture
+def scene_csv(tmp_path):
+    return write_csv(tmp_path / "rays.csv", scene_rows())
+
+
+def check_rows(header, rows):
+    assert tuple(header) == OUTPUT_COLUMNS
+    by_frame = {}
+    for row in rows:
+        record = dict(zip(header, row))
+        by_frame.setdefault(int(record["frame"]), []).append(record)
+    assert sorted(by_frame) == sorted(EXPECTED)
+    for frame, expected in EXPECTED.items():
+        got = by_frame[frame]
+        assert [int(r["mode"]) for r in got] == list(range(len(expected)))
+        assert len(got) == len(expected)
+        for point, num_rays in expected:
+            loc = np.array([[float(r[c]) for c in ("x", "y", "z")] for r in got])
+            k = int(np.argmin(np.linalg.norm(loc - point, axis=1)))
+            assert np.linalg.norm(loc[k] - point) < 5e-3, (frame, loc[k], point)
+            assert int(got[k]["num_rays"]) == num_rays
+            variances = [float(got[k][c]) for c in ("var_x", "var_y", "var_z")]
+            assert all(0 < v < 1.0 for v in variances)
+            assert float(got[k]["field_value"]) > 0
+
+
+def run_main(capsys, argv):
+    status = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+# In-process runs use chunks of 2 frames (3 frames: the last chunk is padded),
+# so that they share one compiled computation.
+CHUNK = ["--chunk", "2"]
+
+
+def test_concurrences_known_scene(tmp_path, scene_csv, capsys):
+    out = tmp_path / "out.csv"
+    status, stdout, stderr = run_main(capsys, ["concurrences", scene_csv, "--out", out, *CHUNK])
+    assert status == 0, stderr
+    assert stdout == ""
+    # stderr is not a terminal here: no progress bar, only the one-line summary.
+    assert stderr.strip().splitlines() == [f"jaxgaze: 5 concurrence(s) in 3 frame(s) written to {out}"]
+    header, rows = read_output(out)
+    check_rows(header, rows)
+    assert sorted(os.listdir(tmp_path)) == ["out.csv", "rays.csv"]  # no temporary file left
+
+
+def test_concurrences_bandwidth_column_and_quiet(tmp_path, capsys):
+    rows = scene_rows()
+    bandwidths = [0.02 + 0.01 * (i % 3) for i in range(len(rows))]
+    src = write_csv(tmp_path / "bw.csv", [r + [h] for r, h in zip(rows, bandwidths)], CSV_COLUMNS + ("bandwidth",))
+    out = tmp_path / "out.csv"
+    status, stdout, stderr = run_main(capsys, ["concurrences", src, "--out", out, "--quiet", *CHUNK])
+    assert status == 0 and stdout == "" and stderr == ""
+    header, with_bandwidth = read_output(out)
+    check_rows(header, with_bandwidth)
+    # The same rays with the default bandwidth (0.05): the per-row bandwidths were used.
+    plain = write_csv(tmp_path / "plain.csv", rows)
+    status, _, _ = run_main(capsys, ["concurrences", plain, "--out", tmp_path / "plain_out.csv", "-q", *CHUNK])
+    _, with_default = read_output(tmp_path / "plain_out.csv")
+    assert status == 0 and len(with_default) == len(with_bandwidth)
+    def variances(rows):  # rows in the same order: by frame, then x
+        rows = sorted(rows, key=lambda r: (int(r[0]), float(r[2])))
+        return np.array([[float(x) for x in r[5:8]] for r in rows])
+
+    assert np.all(variances(with_bandwidth) < variances(with_default))
+
+
+def test_concurrences_replaces_existing_output_and_progress_bar_on_tty(tmp_path, scene_csv, capsys, monkeypatch):
+    out = tmp_path / "out.csv"
+    out.write_text("old contents\n")
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    status, _, stderr = run_main(capsys, ["concurrences", scene_csv, "--out", out, *CHUNK])
+    assert status == 0
+    assert "frame" in stderr and "3/3" in stderr  # the tqdm bar
+    check_rows(*read_output(out))
+    status, _, stderr = run_main(capsys, ["concurrences", scene_csv, "--out", out, "-q", *CHUNK])
+    assert status == 0 and stderr == ""
+
+
+def test_entry_point_subprocess_and_min_rays(tmp_path, scene_csv):
+    out = tmp_path / "out.csv"
+    proc = subprocess.run(
+        [sys.executable, "-m", "jaxgaze.cli", "concurrences", str(scene_csv), "--out", str(out), "--min-rays", "3"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout == ""
+    header, rows = read_output(out)
+    assert tuple(header) == OUTPUT_COLUMNS
+    # Only concurrences of at least 3 rays remain: frame 11's pair looking at A is dropped.
+    assert sorted((int(r[0]), int(r[8])) for r in rows) == [(10, 3), (10, 3), (11, 4), (13, 3)]
+    expected = {(10, 3): (POINT_A, POINT_B), (11, 4): (POINT_B,), (13, 3): (POINT_B,)}
+    for r in rows:
+        loc = np.array([float(x) for x in r[2:5]])
+        assert min(np.linalg.norm(loc - p) for p in expected[(int(r[0]), int(r[8]))]) < 5e-3
+    proc = subprocess.run(
+        [sys.executable, "-m", "jaxgaze.cli", "concurrences", str(tmp_path / "nope.csv"), "--out", str(out)],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.splitlines() == [f"jaxgaze: error: input file not found ({tmp_path / 'nope.csv'})"]
+    assert read_output(out) == (header, rows)  # untouched
+
+
+# ---------------------------------------------------------------------------
+# Failure modes: status 2, one stderr line, no output file (an existing one untouched)
+
+
+def _rows_with(change):
+    rows = [list(map(str, r)) for r in scene_rows()]
+    change(rows)
+    return rows
+
+
+def _set(row, column, value):
+    def change(rows):
+        rows[row][CSV_COLUMNS.index(column)] = value
+
+    return change
+
+
+def _duplicate(rows):
+    rows.insert(4, list(rows[1]))
+
+
+FAILURES = {
+    # name: (file contents or None for a missing file, expected words, line or None)
+    "missing file": (None, "input file not found", None),
+    "empty file": ("", "input is empty", 1),
+    "blank file": ("\n  \n", "input is empty", 2),
+    "header only": (",".join(CSV_COLUMNS) + "\n", "no data rows", 1),
+    "missing column": (["frame", "person", "ox", "oy", "oz", "dx", "dy"], "missing column 'dz'", 1),
+    "missing columns": (["frame", "person", "ox", "oy", "dx", "dy"], "missing columns 'oz', 'dz'", 1),
+    "duplicate column": (list(CSV_COLUMNS) + ["ox"], "duplicate column 'ox'", 1),
+    "non-numeric": (_set(2, "oy", "abc"), "column 'oy' is not a number: 'abc'", 4),
+    "empty cell": (_set(0, "dz", " "), "empty cell in column 'dz'", 2),
+    "nan": (_set(3, "dx", "nan"), "column 'dx' is not finite", 5),
+    "inf": (_set(5, "oz", "-inf"), "column 'oz' is not finite", 7),
+    "float32 overflow": (_set(5, "ox", "1e39"), "column 'ox' is out of range", 7),
+    "zero direction": (lambda rows: [_set(6, c, "0")(rows) for c in ("dx", "dy", "dz")],
+                       "direction (dx, dy, dz) has zero length", 8),
+    "duplicate person": (_duplicate, "duplicate ray for frame 11, person 'a1' (first on line 3)", 6),
+    "non-integer frame": (_set(1, "frame", "11.5"), "column 'frame' must be an integer", 3),
+    "non-numeric frame": (_set(1, "frame", "x"), "column 'frame' is not a number", 3),
+    "ragged row": (lambda rows: rows[2].pop(), "expected 8 fields as in the header, got 7", 4),
+    "zero bandwidth": ("bandwidth=0", "bandwidth must be positive (radians), got 0", 3),
+    "negative bandwidth": ("bandwidth=-0.1", "bandwidth must be positive (radians), got -0.1", 3),
+    "nan bandwidth": ("bandwidth=nan", "column 'bandwidth' is not finite", 3),
+}
+
+
+def _make_input(path, spec):
+    if spec is None:
+        return
+    if isinstance(spec, str) and spec.startswith("bandwidth="):
+        rows = [list(map(str, r)) + ["0.05"] for r in scene_rows()]
+        rows[1][-1] = spec.split("=", 1)[1]
+        write_csv(path, rows, CSV_COLUMNS + ("bandwidth",))
+    elif isinstance(spec, str):
+        path.write_text(spec)
+    elif isinstance(spec, list):
+        write_csv(path, [r[: len(spec)] for r in scene_rows()], spec)
+    else:
+        write_csv(path, _rows_with(spec))
+
+
+def assert_failed(status, stdout, stderr, *words):
+    assert status == 2
+    assert stdout == ""
+    lines = stderr.splitlines()
+    assert len(lines) == 1, stderr
+    assert lines[0].startswith("jaxgaze: error: ")
+    for word in words:
+        assert word in lines[0], (word, lines[0])
+    assert "Traceback" not in stderr
+
+
+@pytest.mark.parametrize("existing", [False, True], ids=["no-out", "existing-out"])
+@pytest.mark.parametrize("name", list(FAILURES))
+def test_concurrences_failure_modes(tmp_path, capsys, name, existing):
+    spec, words, line = FAILURES[name]
+    src = tmp_path / "in.csv"
+    _make_input(src, spec)
+    out = tmp_path / "out.csv"
+    if existing:
+        out.write_text("precious\n")
+    before = sorted(os.listdir(tmp_path))
+    status, stdout, stderr = run_main(capsys, ["concurrences", src, "--out", out])
+    where = f"({src})" if line is None else f"({src}:{line})"
+    assert_failed(status, stdout, stderr, words, where)
+    assert stderr.rstrip("\n").endswith(where)
+    assert sorted(os.listdir(tmp_path)) == before  # no OUT, no temporary file
+    if existing:
+        assert out.read_text() == "precious\n"
+
+
+def test_gazerays_validation_error_is_one_line(tmp_path, scene_csv, capsys, monkeypatch):
+    """A ValueError from GazeRays' own checks becomes one line and status 2, not a traceback."""
+
+    def reject(*args):
+        raise ValueError("GazeRays: origins of ray (0, 1) is not finite (NaN or inf)")
+
+    monkeypatch.setattr(jaxgaze.rays, "_validate", reject)
+    out = tmp_path / "out.csv"
+    status, stdout, stderr = run_main(capsys, ["concurrences", scene_csv, "--out", out, *CHUNK])
+    assert_failed(status, stdout, stderr, "GazeRays: origins of ray (0, 1) is not finite", str(scene_csv))
+    assert not out.exists()
+
+
+def test_unwritable_output(tmp_path, scene_csv, capsys):
+    out = tmp_path / "no such dir" / "out.csv"
+    status, stdout, stderr = run_main(capsys, ["concurrences", scene_csv, "--out", out, *CHUNK])
+    assert_failed(status, stdout, stderr, "cannot write output: directory does not exist", str(out))
+
+
+def test_write_failure_leaves_existing_output(tmp_path, scene_csv, capsys, monkeypatch):
+    out = tmp_path / "out.csv"
+    out.write_text("precious\n")
+
+    def full_disk(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", full_disk)
+    status, stdout, stderr = run_main(capsys, ["concurrences", scene_csv, "--out", out, *CHUNK])
+    monkeypatch.undo()
+    assert_failed(status, stdout, stderr, "cannot write output: No space left on device", str(out))
+    assert out.read_text() == "precious\n"
+    assert sorted(os.listdir(tmp_path)) == ["out.csv", "rays.csv"]
+
+
+def test_input_is_a_directory(tmp_path, capsys):
+    status, stdout, stderr = run_main(capsys, ["concurrences", tmp_path, "--out", tmp_path / "o.csv"])
+    assert_failed(status, stdout, stderr, "directory")
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        [],
+        ["frobnicate"],
+        ["concurrences", "in.csv"],  # --out is required
+        ["concurrences", "in.csv", "--out", "o.csv", "--bandwidth", "0"],
+        ["concurrences", "in.csv", "--out", "o.csv", "--bandwidth", "nan"],
+        ["concurrences", "in.csv", "--out", "o.csv", "--min-rays", "1"],
+        ["demo", "--frames", "0"],
+    ],
+)
+def test_usage_errors_exit_2(argv, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert "usage: jaxgaze" in capsys.readouterr().err
+
+
+def test_help_and_version(capsys):
+    for argv in (["--help"], ["concurrences", "--help"], ["demo", "--help"], ["--version"]):
+        with pytest.raises(SystemExit) as info:
+            main(argv)
+        assert info.value.code == 0
+    assert "jaxgaze" in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------------------
+# demo
+
+
+def test_demo_writes_table_and_figure(tmp_path, capsys):
+    figure = tmp_path / "demo.png"
+    frames = 12
+    status, stdout, stderr = run_main(capsys, ["demo", "--frames", frames, "--seed", "1", "--figure", figure])
+    assert status == 0, stderr
+    assert stderr == ""  # no progress bar: stderr is not a terminal
+    with open(figure, "rb") as f:
+        assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+    assert sorted(os.listdir(tmp_path)) == ["demo.png"]
+    lines = stdout.splitlines()
+    header = next(i for i, line in enumerate(lines) if line.split()[:4] == ["frame", "time_s", "K", "true_K"])
+    table = lines[header + 1: header + 1 + frames]
+    assert [int(line.split()[0]) for line in table] == list(range(frames))
+    for line in table:
+        k, true_k = int(line.split()[2]), int(line.split()[3])
+        assert 0 <= k <= 5 and true_k >= 1
+        assert line.count("(") == k  # one location per concurrence
+    summary = "\n".join(lines[header + 1 + frames:])
+    assert "count accuracy" in summary and "median" in summary and "cm" in summary
+    median = float(summary.split("median ")[1].split(" cm")[0])
+    assert math.isfinite(median) and median < 20.0
+
+
+def test_demo_bad_figure_path_fails_before_work(tmp_path, capsys):
+    for figure, words in ((tmp_path / "demo.xyz", "unsupported figure format '.xyz'"),
+                          (tmp_path / "missing" / "demo.png", "directory does not exist")):
+        status, stdout, stderr = run_main(capsys, ["demo", "--frames", "3", "--figure", figure])
+        assert_failed(status, stdout, stderr, words, str(figure))
+    assert os.listdir(tmp_path) == []
