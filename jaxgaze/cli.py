@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
+import io
 import math
 import os
 import sys
@@ -83,7 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("-q", "--quiet", action="store_true",
                         help="no progress bar (it is also off when stderr is not a terminal)")
     common.add_argument("--chunk", type=_int_at_least(1), default=_DEFAULT_CHUNK, metavar="F",
-                        help=f"frames processed per compiled batch (default {_DEFAULT_CHUNK})")
+                        help=f"frames per compiled batch; shorter recordings are padded to F "
+                             f"(default {_DEFAULT_CHUNK})")
 
     parser = argparse.ArgumentParser(
         prog="jaxgaze",
@@ -190,72 +192,73 @@ def _parse_frame(cell: str, path: str, line: int) -> int:
 def _read_rows(path: str, default_bandwidth: float):
     """Parse and check the CSV; returns ``{frame: [(person, origin, direction, bandwidth, line), ...]}``."""
     try:
-        handle = open(path, newline="", encoding="utf-8-sig")
+        with open(path, "rb") as handle:
+            data = handle.read()
     except FileNotFoundError:
         raise CLIError("input file not found", path) from None
     except IsADirectoryError:
         raise CLIError("input is a directory, not a CSV file", path) from None
     except OSError as error:
         raise CLIError(f"cannot read input: {error.strerror or error}", path) from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        line = data[: error.start].count(b"\n") + 1
+        raise CLIError(f"input is not UTF-8 text: {error.reason} at byte {error.start}", path, line) from None
 
     frames: dict[int, list] = {}
     seen: dict[tuple[int, str], int] = {}
-    reader = csv.reader(handle)
-    with handle:
-        try:
-            header = None
-            for row in reader:
-                if any(cell.strip() for cell in row):
-                    header = row
-                    break
-            if header is None:
-                raise CLIError("input is empty: expected a header row with columns " + ", ".join(CSV_COLUMNS),
-                               path, max(reader.line_num, 1))
-            header_line = reader.line_num
-            names = [cell.strip().lower() for cell in header]
-            duplicated = sorted({n for n in names if names.count(n) > 1 and n})
-            if duplicated:
-                raise CLIError(f"duplicate column '{duplicated[0]}' in the header", path, header_line)
-            missing = [c for c in CSV_COLUMNS if c not in names]
-            if missing:
-                raise CLIError(
-                    "missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
-                    + " in the header (need " + ", ".join(CSV_COLUMNS) + ")", path, header_line)
-            index = {name: names.index(name) for name in CSV_COLUMNS}
-            bw_index = names.index("bandwidth") if "bandwidth" in names else None
+    reader = csv.reader(io.StringIO(text, newline=""), strict=True)
+    try:
+        header = None
+        for row in reader:
+            if any(cell.strip() for cell in row):
+                header = row
+                break
+        if header is None:
+            raise CLIError("input is empty: expected a header row with columns " + ", ".join(CSV_COLUMNS),
+                           path, max(reader.line_num, 1))
+        header_line = reader.line_num
+        names = [cell.strip().lower() for cell in header]
+        duplicated = sorted({n for n in names if names.count(n) > 1 and n})
+        if duplicated:
+            raise CLIError(f"duplicate column '{duplicated[0]}' in the header", path, header_line)
+        missing = [c for c in CSV_COLUMNS if c not in names]
+        if missing:
+            raise CLIError(
+                "missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
+                + " in the header (need " + ", ".join(CSV_COLUMNS) + ")", path, header_line)
+        index = {name: names.index(name) for name in CSV_COLUMNS}
+        bw_index = names.index("bandwidth") if "bandwidth" in names else None
 
-            for row in reader:
-                line = reader.line_num
-                if not any(cell.strip() for cell in row):
-                    continue  # blank line
-                if len(row) != len(header):
-                    raise CLIError(f"expected {len(header)} fields as in the header, got {len(row)}", path, line)
-                frame = _parse_frame(row[index["frame"]], path, line)
-                person = row[index["person"]].strip()
-                if not person:
-                    raise CLIError("empty cell in column 'person'", path, line)
-                origin = tuple(_parse_float(row[index[c]], c, path, line) for c in ("ox", "oy", "oz"))
-                direction = tuple(_parse_float(row[index[c]], c, path, line) for c in ("dx", "dy", "dz"))
-                if bw_index is None:
-                    bandwidth = default_bandwidth
-                else:
-                    bandwidth = _parse_float(row[bw_index], "bandwidth", path, line)
-                    if bandwidth <= 0:
-                        raise CLIError(f"bandwidth must be positive (radians), got {row[bw_index].strip()}",
-                                       path, line)
-                if math.sqrt(sum(x * x for x in direction)) < _MIN_DIRECTION_NORM:
-                    raise CLIError("direction (dx, dy, dz) has zero length", path, line)
-                first = seen.setdefault((frame, person), line)
-                if first != line:
-                    raise CLIError(f"duplicate ray for frame {frame}, person '{person}' (first on line {first})",
+        for row in reader:
+            line = reader.line_num
+            if not any(cell.strip() for cell in row):
+                continue  # blank line
+            if len(row) != len(header):
+                raise CLIError(f"expected {len(header)} fields as in the header, got {len(row)}", path, line)
+            frame = _parse_frame(row[index["frame"]], path, line)
+            person = row[index["person"]].strip()
+            if not person:
+                raise CLIError("empty cell in column 'person'", path, line)
+            origin = tuple(_parse_float(row[index[c]], c, path, line) for c in ("ox", "oy", "oz"))
+            direction = tuple(_parse_float(row[index[c]], c, path, line) for c in ("dx", "dy", "dz"))
+            if bw_index is None:
+                bandwidth = default_bandwidth
+            else:
+                bandwidth = _parse_float(row[bw_index], "bandwidth", path, line)
+                if bandwidth <= 0:
+                    raise CLIError(f"bandwidth must be positive (radians), got {row[bw_index].strip()}",
                                    path, line)
-                frames.setdefault(frame, []).append((person, origin, direction, bandwidth, line))
-        except csv.Error as error:
-            raise CLIError(f"malformed CSV: {error}", path, reader.line_num) from None
-        except UnicodeDecodeError:
-            raise CLIError("input is not UTF-8 text", path, reader.line_num + 1) from None
-        except OSError as error:
-            raise CLIError(f"cannot read input: {error.strerror or error}", path) from None
+            if math.sqrt(sum(x * x for x in direction)) < _MIN_DIRECTION_NORM:
+                raise CLIError("direction (dx, dy, dz) has zero length", path, line)
+            first = seen.setdefault((frame, person), line)
+            if first != line:
+                raise CLIError(f"duplicate ray for frame {frame}, person '{person}' (first on line {first})",
+                               path, line)
+            frames.setdefault(frame, []).append((person, origin, direction, bandwidth, line))
+    except csv.Error as error:
+        raise CLIError(f"malformed CSV: {error}", path, reader.line_num) from None
     if not frames:
         raise CLIError("no data rows after the header", path, header_line)
     return frames
@@ -319,8 +322,9 @@ def find_concurrences_in_chunks(rays, *, chunk: int = _DEFAULT_CHUNK, progress: 
                                 desc: str = "concurrences", **options):
     """:func:`~jaxgaze.find_concurrences_over_frames` over a long recording, ``chunk`` frames at a time.
 
-    Every call sees the same ``(chunk, N)`` shape (the last chunk is padded
-    with empty frames), so the vmapped computation compiles once. Returns a
+    Every call sees the same ``(chunk, N)`` shape (the last or only chunk is
+    padded with empty frames), so the vmapped computation compiles once per
+    ``(chunk, N)`` and options, whatever the length of the recording. Returns a
     :class:`~jaxgaze.Concurrences` of host (numpy) arrays, ``(T, K)``.
     """
     import numpy as np
@@ -329,7 +333,7 @@ def find_concurrences_in_chunks(rays, *, chunk: int = _DEFAULT_CHUNK, progress: 
     from jaxgaze.concurrence import Concurrences, find_concurrences_over_frames
 
     total = rays.batch_shape[0]
-    size = max(1, min(int(chunk), total))
+    size = max(1, int(chunk))
     parts = []
     with tqdm(total=total, unit="frame", desc=desc, disable=not progress, file=sys.stderr,
               dynamic_ncols=True) as bar:
@@ -349,14 +353,18 @@ def find_concurrences_in_chunks(rays, *, chunk: int = _DEFAULT_CHUNK, progress: 
 
 
 @contextlib.contextmanager
-def _atomic_output(path: str, mode: str = "w"):
-    """Yield a temporary file next to ``path``; ``os.replace`` it onto ``path`` only on success."""
+def _atomic_output(path: str, mode: str = "w", what: str = "output"):
+    """Yield a temporary file next to ``path``; ``os.replace`` it onto ``path`` only on success.
+
+    On any failure the temporary file is deleted and an existing ``path`` is
+    left untouched; an ``OSError`` becomes a :class:`CLIError`.
+    """
     target = os.path.abspath(path)
     directory = os.path.dirname(target)
     try:
         fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(target)}.", suffix=".tmp")
     except OSError as error:
-        raise CLIError(f"cannot write output: {error.strerror or error}", path) from None
+        raise CLIError(f"cannot write {what}: {error.strerror or error}", path) from None
     try:
         try:
             file_mode = os.stat(target).st_mode & 0o7777
@@ -375,15 +383,18 @@ def _atomic_output(path: str, mode: str = "w"):
     except OSError as error:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
-        raise CLIError(f"cannot write output: {error.strerror or error}", path) from None
+        raise CLIError(f"cannot write {what}: {error.strerror or error}", path) from None
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
 
 
-def _fmt(value: float) -> str:
-    return format(float(value), ".9g")
+def _fmt(value) -> str:
+    """Shortest text that round-trips the value at its own precision (float32 by default)."""
+    import numpy as np
+
+    return str(value) if isinstance(value, np.floating) else repr(float(value))
 
 
 def write_concurrences_csv(handle, frame_ids, concurrences) -> int:
@@ -488,7 +499,7 @@ def _demo_figure(scene, concurrences, tracks, frames_to_show, fmt: str, path: st
     plot_counts(np.asarray(concurrences.count), np.asarray(scene.true_count), ax=ax, fps=scene.fps)
     fig.suptitle(f"jaxgaze demo: simulated '{scene.name}' scene, {scene.num_frames} frames, "
                  f"{scene.num_people} people")
-    with _atomic_output(path, "wb") as handle:
+    with _atomic_output(path, "wb", what="figure") as handle:
         fig.savefig(handle, format=fmt, dpi=100)
 
 

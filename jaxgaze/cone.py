@@ -90,10 +90,13 @@ def saliency_field(rays: GazeRays, points: Float[Array, "... 3"]) -> Float[Array
     points = jnp.asarray(points, rays.origins.dtype)
     if points.shape[-1:] != (3,):
         raise ValueError(f"saliency_field: points must have shape (..., 3), got {points.shape}")
-    flat = points.reshape(-1, 3)
+    return _field_at(rays, points.reshape(-1, 3)).reshape(points.shape[:-1])
+
+
+@jax.jit
+def _field_at(rays: GazeRays, points: Float[Array, "P 3"]) -> Float[Array, "P"]:
     n = jnp.maximum(jnp.sum(rays.mask), 1)
-    values = jax.vmap(lambda x: jnp.sum(ray_kernels(rays, x)))(flat) / n
-    return values.reshape(points.shape[:-1])
+    return jax.vmap(lambda x: jnp.sum(ray_kernels(rays, x)))(points) / n
 
 
 def saliency_field_grid(

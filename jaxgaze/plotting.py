@@ -277,8 +277,9 @@ def plot_counts(counts, true_counts=None, ax=None, *, fps=None, title=None):
         true_counts = np.asarray(true_counts).reshape(-1)
         if true_counts.shape != counts.shape:
             raise ValueError(f"plot_counts: true_counts shape {true_counts.shape} must match counts {counts.shape}")
-        ax.step(t, true_counts, where="mid", color="black", ls="--", lw=1.5, label="true K", gid="true K")
-    ax.step(t, counts, where="mid", color="tab:blue", lw=1.5, label="K", gid="K")
+    ax.step(t, counts, where="mid", color="tab:blue", lw=2.5, alpha=0.8, label="K", gid="K")
+    if true_counts is not None:  # on top, dashed, so that both show where they agree
+        ax.step(t, true_counts, where="mid", color="black", ls="--", lw=1.2, label="true K", gid="true K")
     top = max(int(counts.max(initial=0)), int(true_counts.max(initial=0)) if true_counts is not None else 0)
     ax.set_ylim(-0.3, top + 0.7)
     ax.yaxis.get_major_locator().set_params(integer=True)

@@ -16,33 +16,43 @@ import pytest
 import jaxgaze.rays
 from jaxgaze.cli import CSV_COLUMNS, OUTPUT_COLUMNS, main
 
-# Two points looked at by groups of people (world frame, metres).
+# Points looked at by groups of people (world frame, metres).
 POINT_A = np.array([1.0, 0.5, 1.0])
 POINT_B = np.array([-1.5, 2.0, 0.8])
+POINT_C = np.array([0.5, -3.0, 1.2])
 
 # Eye centres around each point; every person looks exactly at their point.
 _EYES_A = [(2.6, 0.3, 1.6), (1.2, -1.2, 1.7), (-0.3, -0.4, 1.5), (2.4, 1.8, 1.65)]
 _EYES_B = [(-3.2, 1.6, 1.2), (-1.0, 3.6, 1.3), (-2.4, 3.5, 1.6), (-0.2, 2.9, 1.25)]
-_LONER = (0.0, 4.5, 1.6)  # looks away from everyone: one ray, no concurrence
+_EYES_C = [(2.0, -4.0, 1.6), (-1.2, -4.2, 1.5), (0.4, -5.0, 1.7)]
+# People who look away from everyone: one ray each, no concurrence.
+_LONERS = [((0.0, 4.5, 1.6), (0.0, 9.0, 1.6)), ((4.5, -1.0, 1.6), (9.0, -1.5, 1.7))]
 
-# frame id -> (eyes looking at A, eyes looking at B, loner present)
+# frame id -> {point: eyes looking at it}, number of loners. Frame 11 has 11
+# people, as many as the demo's meeting, so that every in-process run below
+# uses one compiled (CHUNK, 11) computation.
 SCENE = {
-    10: (_EYES_A[:3], _EYES_B[:3], False),
-    11: (_EYES_A[:2], _EYES_B[:4], True),
-    13: ([], _EYES_B[1:4], True),
+    10: ({"a": _EYES_A[:3], "b": _EYES_B[:3]}, 0),
+    11: ({"a": _EYES_A[:2], "b": _EYES_B[:4], "c": _EYES_C}, 2),
+    13: ({"b": _EYES_B[1:4]}, 1),
 }
-EXPECTED = {10: [(POINT_A, 3), (POINT_B, 3)], 11: [(POINT_A, 2), (POINT_B, 4)], 13: [(POINT_B, 3)]}
+POINTS = {"a": POINT_A, "b": POINT_B, "c": POINT_C}
+EXPECTED = {
+    10: [(POINT_A, 3), (POINT_B, 3)],
+    11: [(POINT_A, 2), (POINT_B, 4), (POINT_C, 3)],
+    13: [(POINT_B, 3)],
+}
+CHUNK = ["--chunk", "12"]  # frames per compiled batch in-process (3 frames: padded)
+DEMO_FRAMES = 20  # with CHUNK: two batches, the second padded
 
 
 def scene_rows():
     """CSV rows (frame, person, ox, oy, oz, dx, dy, dz), frames deliberately out of order."""
     rows = []
     for frame in (11, 13, 10):
-        eyes_a, eyes_b, loner = SCENE[frame]
-        people = [(f"a{i}", e, POINT_A) for i, e in enumerate(eyes_a)]
-        people += [(f"b{i}", e, POINT_B) for i, e in enumerate(eyes_b)]
-        if loner:
-            people.append(("loner", _LONER, np.array([0.0, 9.0, 1.6])))
+        groups, loners = SCENE[frame]
+        people = [(f"{g}{i}", e, POINTS[g]) for g, eyes in groups.items() for i, e in enumerate(eyes)]
+        people += [(f"loner{i}", eye, np.array(t)) for i, (eye, t) in enumerate(_LONERS[:loners])]
         for person, eye, target in people:
             d = (target - np.asarray(eye)) * 1.7  # any length: the reader normalises
             rows.append([frame, person, *eye, *(f"{x:.9f}" for x in d)])
@@ -97,18 +107,13 @@ def run_main(capsys, argv):
     return status, out, err
 
 
-# In-process runs use chunks of 2 frames (3 frames: the last chunk is padded),
-# so that they share one compiled computation.
-CHUNK = ["--chunk", "2"]
-
-
 def test_concurrences_known_scene(tmp_path, scene_csv, capsys):
     out = tmp_path / "out.csv"
     status, stdout, stderr = run_main(capsys, ["concurrences", scene_csv, "--out", out, *CHUNK])
     assert status == 0, stderr
     assert stdout == ""
     # stderr is not a terminal here: no progress bar, only the one-line summary.
-    assert stderr.strip().splitlines() == [f"jaxgaze: 5 concurrence(s) in 3 frame(s) written to {out}"]
+    assert stderr.strip().splitlines() == [f"jaxgaze: 6 concurrence(s) in 3 frame(s) written to {out}"]
     header, rows = read_output(out)
     check_rows(header, rows)
     assert sorted(os.listdir(tmp_path)) == ["out.csv", "rays.csv"]  # no temporary file left
@@ -158,8 +163,8 @@ def test_entry_point_subprocess_and_min_rays(tmp_path, scene_csv):
     header, rows = read_output(out)
     assert tuple(header) == OUTPUT_COLUMNS
     # Only concurrences of at least 3 rays remain: frame 11's pair looking at A is dropped.
-    assert sorted((int(r[0]), int(r[8])) for r in rows) == [(10, 3), (10, 3), (11, 4), (13, 3)]
-    expected = {(10, 3): (POINT_A, POINT_B), (11, 4): (POINT_B,), (13, 3): (POINT_B,)}
+    assert sorted((int(r[0]), int(r[8])) for r in rows) == [(10, 3), (10, 3), (11, 3), (11, 4), (13, 3)]
+    expected = {(10, 3): (POINT_A, POINT_B), (11, 3): (POINT_C,), (11, 4): (POINT_B,), (13, 3): (POINT_B,)}
     for r in rows:
         loc = np.array([float(x) for x in r[2:5]])
         assert min(np.linalg.norm(loc - p) for p in expected[(int(r[0]), int(r[8]))]) < 5e-3
@@ -216,11 +221,17 @@ FAILURES = {
     "zero bandwidth": ("bandwidth=0", "bandwidth must be positive (radians), got 0", 3),
     "negative bandwidth": ("bandwidth=-0.1", "bandwidth must be positive (radians), got -0.1", 3),
     "nan bandwidth": ("bandwidth=nan", "column 'bandwidth' is not finite", 3),
+    "not utf-8": (",".join(CSV_COLUMNS).encode() + b"\n1,a,0,0,1,1,0,0\n1,caf\xe9,0,0,1,1,0,0\n",
+                  "input is not UTF-8 text", 3),
+    "bad quoting": (",".join(CSV_COLUMNS) + '\n1,a,0,0,1,1,0,0\n1,"b"x,0,0,1,1,0,0\n', "malformed CSV", 3),
 }
 
 
 def _make_input(path, spec):
     if spec is None:
+        return
+    if isinstance(spec, bytes):
+        path.write_bytes(spec)
         return
     if isinstance(spec, str) and spec.startswith("bandwidth="):
         rows = [list(map(str, r)) + ["0.05"] for r in scene_rows()]
@@ -336,8 +347,10 @@ def test_help_and_version(capsys):
 
 def test_demo_writes_table_and_figure(tmp_path, capsys):
     figure = tmp_path / "demo.png"
-    frames = 12
-    status, stdout, stderr = run_main(capsys, ["demo", "--frames", frames, "--seed", "1", "--figure", figure])
+    frames = DEMO_FRAMES
+    status, stdout, stderr = run_main(
+        capsys, ["demo", "--frames", frames, "--seed", "1", "--figure", figure, *CHUNK]
+    )
     assert status == 0, stderr
     assert stderr == ""  # no progress bar: stderr is not a terminal
     with open(figure, "rb") as f:
