@@ -35,7 +35,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxgaze.cone import ray_kernels
+from jaxgaze.geometry import orthonormal_basis
 from jaxgaze.rays import GazeRays
 
 __all__ = [
@@ -139,30 +139,66 @@ class Tracks(NamedTuple):
 # Mean-shift kernel (eq. 5–6)
 
 
-def _meanshift_step(rays: GazeRays, x: Float[Array, "3"]) -> tuple[Array, Array]:
+class RayProjector(NamedTuple):
+    """Per-ray constants that turn a point into its ray coordinates with one matmul.
+
+    For ray ``i`` with orthonormal ``(v_i, u1_i, u2_i)``, ``basis @ x − offsets``
+    gives ``(t_i, a_i, b_i)``: the depth of ``x`` and its offset on the
+    cross-section, so ``r_i² = a_i² + b_i²`` has no cancellation and, vmapped
+    over seeds, the work is an ``(S,3)×(3,3N)`` product with no ``(S,N,3)`` temporary.
+    """
+
+    basis: Float[Array, "3N 3"]
+    offsets: Float[Array, "3N"]
+    origins: Float[Array, "N 3"]
+    directions: Float[Array, "N 3"]
+    bandwidth: Float[Array, "N"]
+    mask: Bool[Array, "N"]
+
+
+def ray_projector(rays: GazeRays) -> RayProjector:
+    """Precompute the :class:`RayProjector` of one frame of rays."""
+    u1, u2 = jax.vmap(orthonormal_basis)(rays.directions)
+    basis = jnp.stack([rays.directions, u1, u2], axis=1)  # (N, 3, 3)
+    offsets = jnp.einsum("nij,nj->ni", basis, rays.origins)
+    return RayProjector(
+        basis.reshape(-1, 3), offsets.reshape(-1), rays.origins, rays.directions, rays.bandwidth, rays.mask
+    )
+
+
+def _ray_coordinates(proj: RayProjector, x: Float[Array, "3"]):
+    """``(t, r², in front)`` of ``x`` for every ray, and ``1/t`` (0 where not in front)."""
+    tab = (proj.basis @ x - proj.offsets).reshape(-1, 3)
+    t, r2 = tab[:, 0], tab[:, 1] ** 2 + tab[:, 2] ** 2
+    ok = (t > 0) & proj.mask
+    inv_t = jnp.where(ok, 1.0 / jnp.where(ok, t, 1.0), 0.0)
+    return t, r2, ok, inv_t
+
+
+def _meanshift_step(proj: RayProjector, x: Float[Array, "3"]) -> tuple[Array, Array]:
     """One closed-form update ``x ← Σ w_i x̄_i / Σ w_i`` (eq. 6) and ``Σ w_i``.
 
     With ``t_i = v_iᵀ(x − p_i)`` and ``r_i² = ‖x − x̂_i‖²``:
     ``w_i = exp(−r_i² / 2h_i²t_i²) / (h_i³ t_i²)`` (Gaussian profile, ``g ∝ e^{−s/2}``)
-    and ``x̄_i = x̂_i + (r_i²/t_i) v_i = p_i + (‖x − p_i‖²/t_i) v_i``.
+    and ``x̄_i = x̂_i + (r_i²/t_i) v_i = p_i + (r_i²/t_i + t_i) v_i``.
     Rays with ``t_i ≤ 0`` (behind the eye) or masked get zero weight.
     """
-    diff = x - rays.origins
-    t = jnp.einsum("nk,nk->n", diff, rays.directions)
-    dist2 = jnp.einsum("nk,nk->n", diff, diff)
-    ok = (t > 0) & rays.mask
-    t_safe = jnp.where(ok, t, 1.0)
-    h = rays.bandwidth
-    r2 = jnp.maximum(dist2 - t * t, 0.0)
-    w = jnp.where(ok, jnp.exp(-r2 / (2.0 * h * h * t_safe * t_safe)) / (h**3 * t_safe * t_safe), 0.0)
+    t, r2, ok, inv_t = _ray_coordinates(proj, x)
+    h = proj.bandwidth
+    inv_t2 = inv_t * inv_t
+    w = jnp.where(ok, jnp.exp((-0.5 / (h * h)) * r2 * inv_t2) * (inv_t2 / (h * h * h)), 0.0)
     total = jnp.sum(w)
-    target = w @ rays.origins + (w * dist2 / t_safe) @ rays.directions
+    target = w @ proj.origins + (w * (r2 * inv_t + t)) @ proj.directions
     x_new = jnp.where(total > 0, target / jnp.where(total > 0, total, 1.0), x)
     return x_new, total
 
 
-def _field_value(rays: GazeRays, x: Float[Array, "3"]) -> Array:
-    return jnp.sum(ray_kernels(rays, x)) / jnp.maximum(jnp.sum(rays.mask), 1)
+def _field_value(proj: RayProjector, x: Float[Array, "3"]) -> Array:
+    """``f(x)`` of eq. 3 through the projector (same values as :func:`jaxgaze.saliency_field`)."""
+    _, r2, ok, inv_t = _ray_coordinates(proj, x)
+    h = proj.bandwidth
+    k = jnp.where(ok, jnp.exp((-0.5 / (h * h)) * r2 * inv_t * inv_t), 0.0) / (h * math.sqrt(2.0 * math.pi))
+    return jnp.sum(k) / jnp.maximum(jnp.sum(proj.mask), 1)
 
 
 @functools.partial(jax.jit, static_argnames=("max_stretch",))
@@ -189,6 +225,7 @@ def meanshift(
     if not isinstance(max_stretch, int) or max_stretch < 1 or max_stretch & (max_stretch - 1):
         raise ValueError(f"max_stretch must be a power of two ≥ 1, got {max_stretch}")
     stretches = 2.0 ** jnp.arange(int(math.log2(max_stretch)) + 1, dtype=rays.origins.dtype)
+    proj = ray_projector(rays)
 
     def run_one(x0):
         def cond(state):
@@ -197,12 +234,12 @@ def meanshift(
 
         def body(state):
             x, it, _, _ = state
-            m, total = _meanshift_step(rays, x)
+            m, total = _meanshift_step(proj, x)
             if max_stretch == 1:
                 x_new = m
             else:
                 candidates = x + stretches[:, None] * (m - x)
-                values = jax.vmap(lambda c: _field_value(rays, c))(candidates)
+                values = jax.vmap(lambda c: _field_value(proj, c))(candidates)
                 x_new = candidates[jnp.argmax(values)]
             step = jnp.linalg.norm(m - x)
             return x_new, it + 1, step < tol, total > 0
@@ -211,7 +248,7 @@ def meanshift(
         return x, it, done & alive
 
     points, iterations, converged = jax.vmap(run_one)(seeds)
-    values = jax.vmap(lambda p: _field_value(rays, p))(points)
+    values = jax.vmap(lambda p: _field_value(proj, p))(points)
     return MeanShiftResult(points, values, iterations, converged)
 
 
@@ -264,7 +301,8 @@ def _refine_and_laplace(rays, members, x0, prior_scale, max_steps):
 
 def _region(rays: GazeRays, x: Float[Array, "3"]) -> tuple[Array, Array]:
     """Principal axes and semi-axes of ``{f ≥ 0.8 f(x)}`` from the Hessian of ``log f``."""
-    hess = jax.hessian(lambda y: jnp.log(_field_value(rays, y)))(x)
+    proj = ray_projector(rays)
+    hess = jax.hessian(lambda y: jnp.log(_field_value(proj, y)))(x)
     curvature, axes = jnp.linalg.eigh(-0.5 * (hess + hess.T))
     level = 2.0 * math.log(1.0 / _REGION_LEVEL)
     semi = jnp.where(curvature > 0, jnp.sqrt(level / jnp.where(curvature > 0, curvature, 1.0)), jnp.inf)
@@ -340,7 +378,8 @@ def _concurrences_one_frame(
     member_mask = membership[None, :] == slots
     locations, covariances = refine(member_mask, first)
     axes, semi = jax.vmap(lambda x: _region(rays, x))(modes)
-    values = jax.vmap(lambda x: _field_value(rays, x))(locations)
+    proj = ray_projector(rays)
+    values = jax.vmap(lambda x: _field_value(proj, x))(locations)
 
     def pad(a, fill=0.0):
         mask = valid.reshape(valid.shape + (1,) * (a.ndim - 1))

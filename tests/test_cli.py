@@ -107,7 +107,32 @@ def run_main(capsys, argv):
     return status, out, err
 
 
-def test_concurrences_known_scene(tmp_path, scene_csv, capsys):
+@pytest.fixture(scope="module")
+def entry_point_run(tmp_path_factory):
+    """``python -m jaxgaze.cli concurrences ... --min-rays 3``, started in the background.
+
+    The first test asks for it so that the subprocess compiles while the
+    in-process tests run; :func:`test_entry_point_subprocess_and_min_rays` waits for it.
+    """
+    directory = tmp_path_factory.mktemp("entry_point")
+    src = write_csv(directory / "rays.csv", scene_rows())
+    out, kept = directory / "out.csv", directory / "kept.csv"
+    kept.write_text("precious\n")
+    cli = [sys.executable, "-m", "jaxgaze.cli", "concurrences"]
+    procs = [
+        subprocess.Popen(cli + [str(src), "--out", str(out), "--min-rays", "3"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True),
+        subprocess.Popen(cli + [str(directory / "nope.csv"), "--out", str(kept)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True),
+    ]
+    yield procs, directory
+    for proc in procs:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+
+
+def test_concurrences_known_scene(tmp_path, scene_csv, capsys, entry_point_run):
     out = tmp_path / "out.csv"
     status, stdout, stderr = run_main(capsys, ["concurrences", scene_csv, "--out", out, *CHUNK])
     assert status == 0, stderr
@@ -152,14 +177,13 @@ def test_concurrences_replaces_existing_output_and_progress_bar_on_tty(tmp_path,
     assert status == 0 and stderr == ""
 
 
-def test_entry_point_subprocess_and_min_rays(tmp_path, scene_csv):
-    out = tmp_path / "out.csv"
-    proc = subprocess.run(
-        [sys.executable, "-m", "jaxgaze.cli", "concurrences", str(scene_csv), "--out", str(out), "--min-rays", "3"],
-        capture_output=True, text=True, timeout=300,
-    )
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stdout == ""
+def test_entry_point_subprocess_and_min_rays(entry_point_run):
+    (proc, failing), directory = entry_point_run
+    out = directory / "out.csv"
+    stdout, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 0, stderr
+    assert stdout == ""
+    assert stderr.splitlines() == [f"jaxgaze: 5 concurrence(s) in 3 frame(s) written to {out}"]
     header, rows = read_output(out)
     assert tuple(header) == OUTPUT_COLUMNS
     # Only concurrences of at least 3 rays remain: frame 11's pair looking at A is dropped.
@@ -168,13 +192,12 @@ def test_entry_point_subprocess_and_min_rays(tmp_path, scene_csv):
     for r in rows:
         loc = np.array([float(x) for x in r[2:5]])
         assert min(np.linalg.norm(loc - p) for p in expected[(int(r[0]), int(r[8]))]) < 5e-3
-    proc = subprocess.run(
-        [sys.executable, "-m", "jaxgaze.cli", "concurrences", str(tmp_path / "nope.csv"), "--out", str(out)],
-        capture_output=True, text=True, timeout=300,
-    )
-    assert proc.returncode == 2
-    assert proc.stderr.splitlines() == [f"jaxgaze: error: input file not found ({tmp_path / 'nope.csv'})"]
-    assert read_output(out) == (header, rows)  # untouched
+
+    stdout, stderr = failing.communicate(timeout=300)
+    assert failing.returncode == 2 and stdout == ""
+    assert stderr.splitlines() == [f"jaxgaze: error: input file not found ({directory / 'nope.csv'})"]
+    assert (directory / "kept.csv").read_text() == "precious\n"  # untouched
+    assert sorted(os.listdir(directory)) == ["kept.csv", "out.csv", "rays.csv"]  # no temporary file
 
 
 # ---------------------------------------------------------------------------

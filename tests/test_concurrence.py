@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 import jaxgaze as jg
-from jaxgaze.concurrence import _meanshift_step
+from jaxgaze.concurrence import _meanshift_step, ray_projector
 from jaxgaze.cone import sample_gaze_directions
 
 TARGETS = np.array([[2.0, 3.0, 1.2], [-2.5, -1.0, 1.0]])
@@ -191,8 +191,10 @@ def test_meanshift_never_decreases_the_field(seed, n):
 
 @jax.jit
 def _plain_trajectory(rays, seeds):
+    proj = ray_projector(rays)
+
     def step(x, _):
-        x_new = jax.vmap(lambda y: _meanshift_step(rays, y)[0])(x)
+        x_new = jax.vmap(lambda y: _meanshift_step(proj, y)[0])(x)
         return x_new, x_new
 
     _, path = jax.lax.scan(step, seeds, None, length=30)
