@@ -335,8 +335,7 @@ def find_concurrences_in_chunks(rays, *, chunk: int = _DEFAULT_CHUNK, progress: 
     total = rays.batch_shape[0]
     size = max(1, int(chunk))
     parts = []
-    with tqdm(total=total, unit="frame", desc=desc, disable=not progress, file=sys.stderr,
-              dynamic_ncols=True) as bar:
+    with tqdm(total=total, unit="frame", desc=desc, disable=not progress, file=sys.stderr) as bar:
         for start in range(0, total, size):
             part = rays[start:start + size]
             count = part.batch_shape[0]

@@ -154,6 +154,8 @@ class RayProjector(NamedTuple):
     directions: Float[Array, "N 3"]
     bandwidth: Float[Array, "N"]
     mask: Bool[Array, "N"]
+    exponent_scale: Float[Array, "N"]  # −1 / (2 h²)
+    weight_scale: Float[Array, "N"]  # 1 / h³, 0 for padded rays
 
 
 def ray_projector(rays: GazeRays) -> RayProjector:
@@ -161,8 +163,10 @@ def ray_projector(rays: GazeRays) -> RayProjector:
     u1, u2 = jax.vmap(orthonormal_basis)(rays.directions)
     basis = jnp.stack([rays.directions, u1, u2], axis=1)  # (N, 3, 3)
     offsets = jnp.einsum("nij,nj->ni", basis, rays.origins)
+    h = rays.bandwidth
     return RayProjector(
-        basis.reshape(-1, 3), offsets.reshape(-1), rays.origins, rays.directions, rays.bandwidth, rays.mask
+        basis.reshape(-1, 3), offsets.reshape(-1), rays.origins, rays.directions, h, rays.mask,
+        -0.5 / (h * h), jnp.where(rays.mask, 1.0 / (h * h * h), 0.0),
     )
 
 
@@ -183,10 +187,9 @@ def _meanshift_step(proj: RayProjector, x: Float[Array, "3"]) -> tuple[Array, Ar
     and ``x̄_i = x̂_i + (r_i²/t_i) v_i = p_i + (r_i²/t_i + t_i) v_i``.
     Rays with ``t_i ≤ 0`` (behind the eye) or masked get zero weight.
     """
-    t, r2, ok, inv_t = _ray_coordinates(proj, x)
-    h = proj.bandwidth
-    inv_t2 = inv_t * inv_t
-    w = jnp.where(ok, jnp.exp((-0.5 / (h * h)) * r2 * inv_t2) * (inv_t2 / (h * h * h)), 0.0)
+    t, r2, _, inv_t = _ray_coordinates(proj, x)
+    inv_t2 = inv_t * inv_t  # 0 behind the eye and for padded rays, so w = 0 there
+    w = jnp.exp(proj.exponent_scale * r2 * inv_t2) * (inv_t2 * proj.weight_scale)
     total = jnp.sum(w)
     target = w @ proj.origins + (w * (r2 * inv_t + t)) @ proj.directions
     x_new = jnp.where(total > 0, target / jnp.where(total > 0, total, 1.0), x)
@@ -197,7 +200,7 @@ def _field_value(proj: RayProjector, x: Float[Array, "3"]) -> Array:
     """``f(x)`` of eq. 3 through the projector (same values as :func:`jaxgaze.saliency_field`)."""
     _, r2, ok, inv_t = _ray_coordinates(proj, x)
     h = proj.bandwidth
-    k = jnp.where(ok, jnp.exp((-0.5 / (h * h)) * r2 * inv_t * inv_t), 0.0) / (h * math.sqrt(2.0 * math.pi))
+    k = jnp.where(ok, jnp.exp(proj.exponent_scale * r2 * inv_t * inv_t), 0.0) / (h * math.sqrt(2.0 * math.pi))
     return jnp.sum(k) / jnp.maximum(jnp.sum(proj.mask), 1)
 
 
