@@ -312,6 +312,38 @@ def _region(rays: GazeRays, x: Float[Array, "3"]) -> tuple[Array, Array]:
     return axes, semi
 
 
+_FIRST_STAGE_ITERATIONS = 40
+
+
+def _two_stage_meanshift(rays, seeds, seed_ok, *, tol, max_iter, keep):
+    """Mean-shift all seeds for a few iterations, then only the most promising to the end.
+
+    Under ``vmap`` every seed runs as long as the slowest one, and the slow ones
+    are mostly seeds sliding along a lone ray that will be rejected anyway. So
+    all seeds get ``_FIRST_STAGE_ITERATIONS``; of those still moving, the
+    ``keep`` with the highest ``f`` continue up to ``max_iter``. The others keep
+    their (uphill) positions and stay candidates.
+    """
+    first = meanshift(rays, seeds, tol=tol, max_iter=min(max_iter, _FIRST_STAGE_ITERATIONS))
+    if max_iter <= _FIRST_STAGE_ITERATIONS:
+        return first
+    keep = min(keep, seeds.shape[0])
+    moving = seed_ok & ~first.converged
+    _, chosen = jax.lax.top_k(jnp.where(moving, first.field_values, -jnp.inf), keep)
+    second = meanshift(rays, first.points[chosen], tol=tol, max_iter=max_iter - _FIRST_STAGE_ITERATIONS)
+    go_on = moving[chosen]
+
+    def merge(a, b):
+        return a.at[chosen].set(jnp.where(go_on.reshape((-1,) + (1,) * (b.ndim - 1)), b, a[chosen]))
+
+    return MeanShiftResult(
+        points=merge(first.points, second.points),
+        field_values=merge(first.field_values, second.field_values),
+        iterations=merge(first.iterations, first.iterations[chosen] + second.iterations),
+        converged=merge(first.converged, second.converged),
+    )
+
+
 def _concurrences_one_frame(
     rays: GazeRays,
     seed_depths: Float[Array, "S"],
@@ -331,7 +363,7 @@ def _concurrences_one_frame(
     seeds = rays.origins[:, None, :] + seed_depths[None, :, None] * rays.directions[:, None, :]
     seeds = seeds.reshape(-1, 3)
     seed_ok = jnp.repeat(rays.mask, seed_depths.shape[0])
-    ms = meanshift(rays, seeds, tol=tol, max_iter=max_iter)
+    ms = _two_stage_meanshift(rays, seeds, seed_ok, tol=tol, max_iter=max_iter, keep=2 * max_modes + 2)
     # Seeds that hit the iteration cap have still only climbed f, so they stay candidates.
     score = jnp.where(seed_ok & (ms.field_values > 0), ms.field_values, -jnp.inf)
     order = jnp.argsort(-score)

@@ -117,14 +117,15 @@ class GazeRays(eqx.Module):
                 raise ValueError(f"GazeRays.stack: frame {i} already has batch shape {f.batch_shape}")
         n_max = max(max(f.num_rays for f in frames), 1)
 
-        def pad(a):
-            return jnp.pad(a, [(0, n_max - a.shape[0])] + [(0, 0)] * (a.ndim - 1))
+        def padded(field, dtype):
+            out = np.zeros((len(frames), n_max) + getattr(frames[0], field).shape[1:], dtype)
+            for t, f in enumerate(frames):  # host-side copies; one device transfer at the end
+                out[t, : f.num_rays] = np.asarray(getattr(f, field))
+            return out
 
+        dtype = np.result_type(*[np.asarray(f.origins).dtype for f in frames])
         return cls(
-            jnp.stack([pad(f.origins) for f in frames]),
-            jnp.stack([pad(f.directions) for f in frames]),
-            jnp.stack([pad(f.bandwidth) for f in frames]),
-            jnp.stack([pad(f.mask) for f in frames]),
+            padded("origins", dtype), padded("directions", dtype), padded("bandwidth", dtype), padded("mask", bool)
         )
 
 
