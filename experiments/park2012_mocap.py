@@ -26,7 +26,7 @@ import jax
 import numpy as np
 
 from jaxgaze import find_concurrences_over_frames
-from jaxgaze.metrics import coverage, count_accuracy, localisation_errors
+from jaxgaze.metrics import count_accuracy, coverage, localisation_errors, region_coverage
 from jaxgaze.simulate import scene_config, simulate_scene
 
 PAPER_MEAN_CM, PAPER_STD_CM = 10.1, 5.73
@@ -57,6 +57,7 @@ def main(argv=None) -> dict:
     true_count = np.asarray(scene.true_count)
     accuracy = count_accuracy(count, true_count)
     cov = coverage(found, scene, level=args.level)
+    region = region_coverage(found, scene)
     dist = np.linalg.norm(np.asarray(scene.targets - scene.rays.origins), axis=-1)
     h = math.hypot(args.eye_in_head, args.head_noise)
 
@@ -69,11 +70,13 @@ def main(argv=None) -> dict:
     print(f"  wall time {elapsed:.1f} s (simulation + concurrence search, incl. compilation)")
     print()
     rows = [
-        ("mean ± std error (cm)", f"{errors_cm.mean():.1f} ± {errors_cm.std():.2f}", f"{PAPER_MEAN_CM} ± {PAPER_STD_CM}"),
+        ("mean ± std error (cm)", f"{errors_cm.mean():.1f} ± {errors_cm.std():.2f}",
+         f"{PAPER_MEAN_CM} ± {PAPER_STD_CM}"),
         ("median error (cm)", f"{np.median(errors_cm):.1f}", "-"),
         ("90th percentile (cm)", f"{np.percentile(errors_cm, 90):.1f}", "-"),
         ("count accuracy", f"{100 * accuracy:.1f} %", "-"),
-        (f"{100 * args.level:g} % region coverage", f"{100 * cov:.1f} %", "all inside 80 % region"),
+        (f"{100 * args.level:g} % Laplace region coverage", f"{100 * cov:.1f} %", "-"),
+        ("truth in f ≥ 0.8 f(mode) region", f"{100 * region:.1f} %", "always"),
         ("matched pairs", f"{errors_cm.size}", "-"),
     ]
     width = max(len(r[0]) for r in rows)
@@ -92,6 +95,7 @@ def main(argv=None) -> dict:
         "median_cm": float(np.median(errors_cm)),
         "count_accuracy": accuracy,
         "coverage": cov,
+        "region_coverage": region,
     }
 
 

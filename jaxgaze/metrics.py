@@ -36,6 +36,7 @@ __all__ = [
     "count_accuracy",
     "mahalanobis_squared",
     "coverage",
+    "region_coverage",
     "evaluate",
 ]
 
@@ -114,7 +115,9 @@ def _estimates(concurrences, need_covariances: bool = False):
     if single:
         loc = loc[None]
     if loc.ndim != 3 or loc.shape[-1] != 3:
-        raise ValueError(f"concurrences.locations must have shape (T, K, 3) or (K, 3), got {np.shape(concurrences.locations)}")
+        raise ValueError(
+            f"concurrences.locations must have shape (T, K, 3) or (K, 3), got {np.shape(concurrences.locations)}"
+        )
     valid = getattr(concurrences, "valid", None)
     valid = np.ones(loc.shape[:2], bool) if valid is None else np.asarray(valid, dtype=bool)
     if single and valid.ndim == 1:
@@ -224,6 +227,30 @@ def coverage(concurrences, truth, truth_valid=None, level: float = 0.9, *, max_d
     if m2.size == 0:
         return float("nan")
     return float(np.mean(m2 <= chi2.ppf(level, df=3)))
+
+
+def region_coverage(concurrences, truth, truth_valid=None, *, max_distance: float | None = None) -> float:
+    """Fraction of matched truths inside the paper's confidence region of their estimate.
+
+    Park et al. (Sec. 4.1) draw the region ``{x : f(x) ≥ 0.8 f(mode)}`` and
+    report that the markers are always inside it. With the region's principal
+    axes ``A`` (columns) and semi-axes ``s`` (``concurrences.region_axes``,
+    ``region_semi_axes``; ``inf`` along a flat direction) the test is
+    ``Σ_i (a_iᵀ(x − x̂) / s_i)² ≤ 1``. Returns NaN when nothing matched.
+    """
+    loc, _, _ = _estimates(concurrences)
+    for field in ("region_axes", "region_semi_axes"):
+        if not hasattr(concurrences, field):
+            raise ValueError(f"concurrences must have a '{field}' field (e.g. jaxgaze.Concurrences)")
+    axes = np.asarray(concurrences.region_axes, dtype=float).reshape(loc.shape[:2] + (3, 3))
+    semi = np.asarray(concurrences.region_semi_axes, dtype=float).reshape(loc.shape[:2] + (3,))
+    matches = match_over_frames(concurrences, truth, truth_valid, max_distance=max_distance)
+    if matches.distances.size == 0:
+        return float("nan")
+    tloc, _ = _truth(truth, truth_valid, loc.shape[0])
+    diff = tloc[matches.frames, matches.truth] - loc[matches.frames, matches.estimated]
+    y = np.einsum("pij,pi->pj", axes[matches.frames, matches.estimated], diff)
+    return float(np.mean(np.sum((y / semi[matches.frames, matches.estimated]) ** 2, axis=-1) <= 1.0))
 
 
 def evaluate(concurrences, scene, level: float = 0.9, *, max_distance: float | None = None) -> Evaluation:

@@ -17,6 +17,7 @@ from jaxgaze.metrics import (
     mahalanobis_squared,
     match_concurrences,
     match_over_frames,
+    region_coverage,
 )
 
 
@@ -43,13 +44,12 @@ def _brute_force(est: np.ndarray, tru: np.ndarray) -> float:
 
 
 def test_hungarian_matches_brute_force():
-    key = jax.random.key(0)
-    for case in range(60):
-        k_case = jax.random.fold_in(key, case)
-        k_n, k_e, k_t = jax.random.split(k_case, 3)
-        k, m = (int(x) for x in jax.random.randint(k_n, (2,), 0, 5))
-        est = np.asarray(jax.random.uniform(k_e, (k, 3), minval=-2, maxval=2), dtype=float)
-        tru = np.asarray(jax.random.uniform(k_t, (m, 3), minval=-2, maxval=2), dtype=float)
+    cases = 60
+    sizes = np.asarray(jax.random.randint(jax.random.key(0), (cases, 2), 0, 5))  # K, M in 0..4
+    points = np.asarray(jax.random.uniform(jax.random.key(1), (cases, 2, 4, 3), minval=-2, maxval=2), dtype=float)
+    for case in range(cases):
+        k, m = sizes[case]
+        est, tru = points[case, 0, :k], points[case, 1, :m]
         match = match_concurrences(est, tru)
         assert len(match.distances) == min(k, m)
         assert len(set(match.estimated.tolist())) == len(match.estimated)  # one-to-one
@@ -150,14 +150,13 @@ def test_count_accuracy():
 
 def _gaussian_case(key, num_frames: int, scale: float = 1.0):
     """Estimates with random SPD covariances; truth drawn from N(estimate, scale² Σ)."""
-    k_a, k_loc, k_z = jax.random.split(key, 3)
-    a = jax.random.normal(k_a, (num_frames, 1, 3, 3)) * 0.1
-    cov = a @ jnp.swapaxes(a, -1, -2) + 1e-3 * jnp.eye(3)
-    loc = jax.random.uniform(k_loc, (num_frames, 1, 3), minval=-3, maxval=3)
-    z = jax.random.normal(k_z, (num_frames, 1, 3, 1))
-    truth = loc + scale * (jnp.linalg.cholesky(cov) @ z)[..., 0]
-    est = Estimates(np.asarray(loc), np.asarray(cov), np.ones((num_frames, 1), bool))
-    return est, np.asarray(truth), np.ones((num_frames, 1), bool)
+    draws = np.asarray(jax.random.normal(key, (num_frames, 15)), dtype=float)  # one draw: 9 + 3 + 3
+    a = draws[:, :9].reshape(num_frames, 1, 3, 3) * 0.1
+    cov = a @ np.swapaxes(a, -1, -2) + 1e-3 * np.eye(3)
+    loc = 3.0 * draws[:, 9:12].reshape(num_frames, 1, 3)
+    z = draws[:, 12:].reshape(num_frames, 1, 3, 1)
+    truth = loc + scale * (np.linalg.cholesky(cov) @ z)[..., 0]
+    return Estimates(loc, cov, np.ones((num_frames, 1), bool)), truth, np.ones((num_frames, 1), bool)
 
 
 def test_coverage_on_gaussian():
@@ -191,3 +190,26 @@ def test_evaluate_summary():
     assert summary.median_error == pytest.approx(np.median([0.1, 0.2, 0.05, 0.3]))
     assert summary.count_accuracy == pytest.approx(1 / 3)  # frame 1 misses one, frame 2 has a false alarm
     assert 0 <= summary.coverage <= 1
+
+
+class RegionEstimates(NamedTuple):
+    locations: np.ndarray
+    valid: np.ndarray
+    region_axes: np.ndarray
+    region_semi_axes: np.ndarray
+
+
+def test_region_coverage():
+    """Truth inside/outside the paper's 80 %-of-maximum ellipsoid, flat axes included."""
+    rot = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])  # columns: principal axes
+    est = RegionEstimates(
+        locations=np.zeros((4, 1, 3)),
+        valid=np.ones((4, 1), bool),
+        region_axes=np.broadcast_to(rot, (4, 1, 3, 3)),
+        region_semi_axes=np.broadcast_to(np.array([0.1, 0.5, np.inf]), (4, 1, 3)),
+    )
+    truth = np.array([[[0.0, 0.09, 0]], [[0.0, 0.11, 0]], [[0.4, 0, 0]], [[0.0, 0, 7.0]]])
+    # axis 1 is world y (semi 0.1), axis 2 world -x (semi 0.5), axis 3 z (flat)
+    assert region_coverage(est, truth) == 0.75
+    with pytest.raises(ValueError, match="region_axes"):
+        region_coverage(Estimates(est.locations, np.zeros((4, 1, 3, 3)), est.valid), truth)

@@ -4,8 +4,11 @@
   (eye-in-head 0.02 rad, head pose 0.01 rad). The paper reports
   10.1 ± 5.73 cm; we require a median error below 10 cm, the right count in
   ≥ 95 % of frames, and 90 % Laplace regions that cover the truth in 80–97 %
-  of matched pairs. 480 frames (48 s) keep the sampling error of these rates
-  at about ±1 %.
+  of matched pairs. 480 frames (48 s at 10 fps) keep the sampling error of
+  the count rate at about ±1 %: the misses cluster in the ~15 % of frames
+  where one marker has only two viewers (a 2-ray concurrence), so a short
+  clip can land right on the 95 % line by chance (240 frames: 0.950–0.988
+  over seeds 0–4; 480 frames: 0.967–0.983 over seeds 0–5).
 * ``meeting`` (Sec. 4.2): two groups → presenter → two groups; the count per
   phase must follow 2 → 1 → 2 in ≥ 90 % of frames outside a short margin
   around the (staggered) phase changes.
@@ -20,7 +23,8 @@ from jaxgaze.metrics import count_accuracy, coverage, localisation_errors
 from jaxgaze.simulate import simulate_scene
 
 MOCAP_FRAMES = 480
-MARGIN = 5  # frames dropped on each side of a phase boundary (switches are staggered by ±3)
+MEETING_FRAMES = 120  # 40 per phase
+MARGIN = 5  # frames dropped on each side of a phase boundary (switches are staggered by ±2)
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +35,7 @@ def mocap():
 
 @pytest.fixture(scope="module")
 def meeting():
-    scene = simulate_scene(jax.random.key(0), "meeting")
+    scene = simulate_scene(jax.random.key(0), "meeting", MEETING_FRAMES)
     return scene, find_concurrences_over_frames(scene.rays)
 
 

@@ -229,3 +229,7 @@ def test_bad_arguments():
         simulate_scene(key, SceneConfig("cocktail", 10, 0.02, 0.01))
     with pytest.raises(ValueError, match="preset must be"):
         simulate_scene(key, 3)
+    with pytest.raises(ValueError, match="jax.random key"):
+        simulate_scene(0, "mocap")
+    with pytest.raises(ValueError, match="fps"):
+        simulate_scene(key, scene_config("mocap")._replace(fps=0.0))
