@@ -235,12 +235,6 @@ class _Pool:
         self._next += n
         return minval + (maxval - minval) * out
 
-    def skip_to(self, position: int):
-        """Continue from ``position`` (must not go back), so later draws do not depend on earlier ones."""
-        if position < self._next:
-            raise RuntimeError("simulate: random pool overlap (internal error; enlarge _pool_size)")
-        self._next = position
-
     def randint(self, shape, low: int, high: int):
         """Integers uniform in ``[low, high)``."""
         u = self.uniform(shape, float(low), float(high))
@@ -511,30 +505,22 @@ def _perturb(origins, targets, z, eye_in_head, head_noise):
     return unit(v).reshape(shape)
 
 
-def _box_muller(u: Float[Array, "... 2k"]) -> Float[Array, "... 2k"]:
-    """Standard normals from uniforms in [0, 1) (Box–Muller), pairwise along the last axis."""
-    u1, u2 = u[..., 0::2], u[..., 1::2]
-    r = jnp.sqrt(-2.0 * jnp.log1p(-u1))  # 1 − u1 ∈ (0, 1]
-    angle = 2 * math.pi * u2
-    return jnp.concatenate([r * jnp.cos(angle), r * jnp.sin(angle)], axis=-1)
-
-
 @partial(jax.jit, static_argnames=("preset", "num_frames", "fps"))
 def _simulate_arrays(key, eye_in_head, head_noise, *, preset: str, num_frames: int, fps: float):
     """All frames of a preset in one compiled pass: layout, ground truth and noisy rays.
 
-    One ``jax.random.uniform`` call feeds everything (layout draws, then
-    Box–Muller normals for the ray noise): each extra ``jax.random`` call would
-    add a threefry kernel and seconds of XLA compile time.
+    The layout takes its uniforms from one ``jax.random.uniform`` draw (each
+    extra ``jax.random`` call adds a threefry kernel and compile time); the ray
+    noise is one ``jax.random.normal`` draw from a separate key.
     """
     n_people = _NUM_PEOPLE[preset]
     n_layout = _pool_size(num_frames)
-    pool = _Pool(key, n_layout + num_frames * n_people * 6)
+    layout_key, noise_key = jax.random.split(key)
+    pool = _Pool(layout_key, n_layout)
     layout = _BUILDERS[preset](pool, num_frames, fps)
     if layout.focus.shape[1] != n_people:
         raise RuntimeError("simulate: _NUM_PEOPLE out of date (internal error)")
-    pool.skip_to(n_layout)
-    z = _box_muller(pool.uniform((num_frames, n_people, 6)))[..., :5]
+    z = jax.random.normal(noise_key, (num_frames, n_people, 5))
     M = layout.foci.shape[1]
     targets = jnp.take_along_axis(layout.foci, layout.focus[..., None], axis=1)  # (T, N, 3)
     counts = jnp.sum(layout.focus[:, :, None] == jnp.arange(M)[None, None, :], axis=1)  # (T, M)
