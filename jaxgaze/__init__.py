@@ -4,7 +4,7 @@ Frames and units are documented in ``docs/conventions.md``: world/head/camera
 frames, metres, radians inside (degrees only in names ending ``_deg``).
 """
 
-from jaxgaze import geometry
+from jaxgaze import geometry, metrics, simulate
 from jaxgaze.concurrence import (
     Concurrences,
     MeanShiftResult,
@@ -29,6 +29,8 @@ __version__ = "0.1.0"
 
 __all__ = [
     "geometry",
+    "metrics",
+    "simulate",
     "GazeRays",
     "cone_log_density",
     "sample_gaze_directions",

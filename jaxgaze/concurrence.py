@@ -3,24 +3,31 @@
 Pipeline for one frame (all in JAX, fixed shapes, so it vmaps over frames):
 
 1. **Seeds** at fixed depths along every primary ray.
-2. **Mean-shift** (eq. 5–6), vmapped over seeds, each a ``lax.while_loop`` that
-   stops when a step is shorter than ``tol`` or after ``max_iter`` steps.
-3. **Exclusive support.** Converged seeds are visited by decreasing field value.
-   A seed within ``merge_radius`` of an accepted mode is merged into it. A seed
-   whose mean-shift weight is dominated by one ray (share > ``dominance``) is
+2. **Mean-shift** (eq. 5–6) on the field smoothed with bandwidth
+   ``search_scale · h``, vmapped over seeds, each a ``lax.while_loop`` that stops
+   when a step is shorter than ``tol`` or after ``max_iter`` steps. Two noisy
+   rays that "meet" usually miss each other by about ``h``, and at the
+   calibrated bandwidth their crossing is often not a single peak; the wider
+   search bandwidth (default 2) finds it.
+3. **Exclusive support.** Seeds are visited by decreasing field value. A seed
+   within ``merge_radius`` of an accepted mode is merged into it. A seed whose
+   mean-shift weight is dominated by one ray (share > ``dominance``) is
    rejected. Otherwise it claims every not-yet-claimed ray whose perspective
-   distance is below ``claim_bandwidths`` bandwidths, and becomes a mode if it
-   claims at least ``min_rays`` rays. Each ray thus supports at most one mode.
-4. **Location and uncertainty.** The mode's location is refined to the
-   maximum-likelihood common point of regard of its member rays,
-   ``argmin_x Σ_i ‖d_i(x)‖² / 2h_i²`` (Levenberg–Marquardt, ``optimistix``),
-   and its covariance is the Laplace (Gauss–Newton) approximation
-   ``(JᵀJ + I/s²)⁻¹`` with ``J`` the Jacobian of the whitened residuals
-   ``d_i(x)/h_i`` and a weak prior of scale ``s = prior_scale`` metres that
-   keeps near-parallel rays finite. Under the cone model the residuals at the
-   true point are standard normal, so this covariance is the one checked by
-   coverage. The paper's confidence region, ``{x : f(x) ≥ 0.8 f(mode)}``, is
-   reported separately by its principal axes from the Hessian of ``log f``.
+   distance is below ``claim_bandwidths`` search bandwidths, and becomes a mode
+   if it claims at least ``min_rays`` rays. Each ray supports at most one mode.
+4. **Location and uncertainty.** Each mode is refined to the maximum-likelihood
+   common point of regard of its member rays under the calibrated cone model,
+   ``argmin_x Σ_i ‖d_i(x)‖² / 2h_i²`` (Levenberg–Marquardt, ``optimistix``).
+   Unclaimed rays within the claim radius of the refined point join it; members
+   farther than 4 ``h`` from it are dropped (a mode left with fewer than
+   ``min_rays`` is dropped too); the location is refined again. Its covariance is
+   the Laplace (Gauss–Newton) approximation ``(JᵀJ + I/s²)⁻¹`` with ``J`` the
+   Jacobian of the whitened residuals ``d_i(x)/h_i`` and a weak prior of scale
+   ``s = prior_scale`` metres that keeps near-parallel rays finite. Under the
+   cone model the residuals at the true point are standard normal, so this is
+   the covariance whose coverage is checked. The paper's confidence region,
+   ``{x : f(x) ≥ 0.8 f(x*)}``, is reported by its principal axes from the Hessian
+   of ``log f`` at the location; it describes the field, not the location error.
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ import functools
 import math
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -313,6 +321,7 @@ def _region(rays: GazeRays, x: Float[Array, "3"]) -> tuple[Array, Array]:
 
 
 _FIRST_STAGE_ITERATIONS = 40
+_PRUNE_BANDWIDTHS = 4.0  # P(‖d‖ > 4h) = e⁻⁸ ≈ 3·10⁻⁴ for a true member
 
 
 def _two_stage_meanshift(rays, seeds, seed_ok, *, tol, max_iter, keep):
@@ -350,6 +359,7 @@ def _concurrences_one_frame(
     *,
     min_rays: int,
     claim_bandwidths: float,
+    search_scale: float,
     dominance: float,
     merge_radius: float,
     tol: float,
@@ -360,10 +370,11 @@ def _concurrences_one_frame(
 ) -> Concurrences:
     n = rays.num_rays
     dtype = rays.origins.dtype
+    search = eqx.tree_at(lambda r: r.bandwidth, rays, rays.bandwidth * search_scale)
     seeds = rays.origins[:, None, :] + seed_depths[None, :, None] * rays.directions[:, None, :]
     seeds = seeds.reshape(-1, 3)
     seed_ok = jnp.repeat(rays.mask, seed_depths.shape[0])
-    ms = _two_stage_meanshift(rays, seeds, seed_ok, tol=tol, max_iter=max_iter, keep=2 * max_modes + 2)
+    ms = _two_stage_meanshift(search, seeds, seed_ok, tol=tol, max_iter=max_iter, keep=2 * max_modes + 2)
     # Seeds that hit the iteration cap have still only climbed f, so they stay candidates.
     score = jnp.where(seed_ok & (ms.field_values > 0), ms.field_values, -jnp.inf)
     order = jnp.argsort(-score)
@@ -371,14 +382,14 @@ def _concurrences_one_frame(
     def visit(carry, s):
         claimed, membership, modes, mode_conv, count = carry
         x = ms.points[s]
-        dist, ok = _whitened_distances(rays, x)
+        dist, ok = _whitened_distances(search, x)
         candidates = ok & (dist < claim_bandwidths) & ~claimed
         slot = jnp.arange(max_modes)
         near_existing = jnp.any((slot < count) & (jnp.linalg.norm(modes - x, axis=-1) < merge_radius))
         accept = (
             jnp.isfinite(score[s])
             & ~near_existing
-            & (_dominant_share(rays, x) <= dominance)
+            & (_dominant_share(search, x) <= dominance)
             & (jnp.sum(candidates) >= min_rays)
             & (count < max_modes)
         )
@@ -405,14 +416,24 @@ def _concurrences_one_frame(
     # the still-unclaimed rays again at each mode's refined (maximum-likelihood)
     # location, nearest mode first, and refine once more.
     first, _ = refine(membership[None, :] == slots, modes)
-    dist, ok = jax.vmap(lambda x: _whitened_distances(rays, x))(first)
+    dist, ok = jax.vmap(lambda x: _whitened_distances(search, x))(first)
     dist = jnp.where(valid[:, None] & ok & (dist < claim_bandwidths), dist, jnp.inf)
     nearest = jnp.argmin(dist, axis=0)
     late = (membership < 0) & jnp.isfinite(jnp.min(dist, axis=0))
     membership = jnp.where(late, nearest, membership)
     member_mask = membership[None, :] == slots
-    locations, covariances = refine(member_mask, first)
-    axes, semi = jax.vmap(lambda x: _region(rays, x))(modes)
+    second, _ = refine(member_mask, first)
+    # A wide search radius can also take in a stray ray of another group. Drop
+    # members that the calibrated cone model rejects at the refined location
+    # (‖d‖ > prune_bandwidths · h), drop modes left with too few rays, refine again.
+    dist, _ = jax.vmap(lambda x: _whitened_distances(rays, x))(second)
+    stray = member_mask & (dist > _PRUNE_BANDWIDTHS)
+    member_mask = member_mask & ~stray
+    valid = valid & (jnp.sum(member_mask, axis=1) >= min_rays)
+    member_mask = member_mask & valid[:, None]
+    membership = jnp.where(jnp.any(member_mask, axis=0), jnp.argmax(member_mask, axis=0), -1).astype(jnp.int32)
+    locations, covariances = refine(member_mask, second)
+    axes, semi = jax.vmap(lambda x: _region(rays, x))(locations)
     proj = ray_projector(rays)
     values = jax.vmap(lambda x: _field_value(proj, x))(locations)
 
@@ -436,6 +457,7 @@ def _concurrences_one_frame(
 _STATIC = (
     "min_rays",
     "claim_bandwidths",
+    "search_scale",
     "dominance",
     "merge_radius",
     "tol",
@@ -452,7 +474,7 @@ _over_frames_jit = jax.jit(
 )
 
 
-def _options(rays, seed_depths, min_rays, claim_bandwidths, dominance, merge_radius, tol, max_iter, max_modes,
+def _options(rays, seed_depths, min_rays, claim_bandwidths, search_scale, dominance, merge_radius, tol, max_iter, max_modes,
              prior_scale, refine_steps):
     if not isinstance(rays, GazeRays):
         raise TypeError(f"expected jaxgaze.GazeRays, got {type(rays).__name__}")
@@ -460,7 +482,7 @@ def _options(rays, seed_depths, min_rays, claim_bandwidths, dominance, merge_rad
         raise ValueError(f"min_rays must be an integer ≥ 2 (a concurrence needs two people), got {min_rays}")
     if not 0 < dominance <= 1:
         raise ValueError(f"dominance must lie in (0, 1], got {dominance}")
-    for name, value in (("claim_bandwidths", claim_bandwidths), ("merge_radius", merge_radius), ("tol", tol),
+    for name, value in (("claim_bandwidths", claim_bandwidths), ("search_scale", search_scale), ("merge_radius", merge_radius), ("tol", tol),
                         ("prior_scale", prior_scale)):
         if not value > 0:
             raise ValueError(f"{name} must be positive, got {value}")
@@ -470,7 +492,7 @@ def _options(rays, seed_depths, min_rays, claim_bandwidths, dominance, merge_rad
     n = rays.num_rays
     k = n // min_rays if max_modes is None else min(int(max_modes), n // min_rays)
     static = dict(
-        min_rays=int(min_rays), claim_bandwidths=float(claim_bandwidths), dominance=float(dominance),
+        min_rays=int(min_rays), claim_bandwidths=float(claim_bandwidths), search_scale=float(search_scale), dominance=float(dominance),
         merge_radius=float(merge_radius), tol=float(tol), max_iter=int(max_iter), max_modes=k,
         prior_scale=float(prior_scale), refine_steps=int(refine_steps),
     )
@@ -491,7 +513,8 @@ def find_concurrences(
     *,
     seed_depths=DEFAULT_SEED_DEPTHS,
     min_rays: int = 2,
-    claim_bandwidths: float = 4.0,
+    claim_bandwidths: float = 3.0,
+    search_scale: float = 2.0,
     dominance: float = 0.9,
     merge_radius: float = 0.3,
     tol: float = 1e-4,
@@ -506,7 +529,9 @@ def find_concurrences(
         rays: one frame of primary gaze rays, ``(N, 3)``, world frame, metres.
         seed_depths: depths (m) of the mean-shift seeds along every ray.
         min_rays: fewest rays a mode must claim to count (≥ 2).
-        claim_bandwidths: a ray supports a mode if ``‖d(l, x)‖ < claim_bandwidths · h``.
+        claim_bandwidths: a ray supports a mode if ``‖d(l, x)‖ < claim_bandwidths · search_scale · h``.
+        search_scale: the mode search and the claims use the field smoothed with
+            bandwidth ``search_scale · h``; locations and covariances use ``h``.
         dominance: reject a mode if one ray carries more than this share of ``Σ w``.
         merge_radius: seeds converging within this distance (m) of a mode merge into it.
         tol, max_iter: mean-shift stopping rule (step length in m, iteration cap).
@@ -523,7 +548,7 @@ def find_concurrences(
             f"find_concurrences takes one frame; rays have batch shape {rays.batch_shape}. "
             "Use find_concurrences_over_frames for a recording."
         )
-    options = (seed_depths, min_rays, claim_bandwidths, dominance, merge_radius, tol, max_iter, max_modes,
+    options = (seed_depths, min_rays, claim_bandwidths, search_scale, dominance, merge_radius, tol, max_iter, max_modes,
                prior_scale, refine_steps)
     if _options(rays, *options)[1]["max_modes"] == 0:
         return _empty((), rays.num_rays, rays.origins.dtype)
@@ -558,7 +583,8 @@ def find_concurrences_over_frames(
     *,
     seed_depths=DEFAULT_SEED_DEPTHS,
     min_rays: int = 2,
-    claim_bandwidths: float = 4.0,
+    claim_bandwidths: float = 3.0,
+    search_scale: float = 2.0,
     dominance: float = 0.9,
     merge_radius: float = 0.3,
     tol: float = 1e-4,
@@ -577,7 +603,7 @@ def find_concurrences_over_frames(
     if not isinstance(rays, GazeRays) or len(rays.batch_shape) != 1:
         shape = rays.batch_shape if isinstance(rays, GazeRays) else None
         raise ValueError(f"find_concurrences_over_frames needs rays of shape (T, N, 3); batch shape is {shape}")
-    depths, static = _options(rays, seed_depths, min_rays, claim_bandwidths, dominance, merge_radius, tol,
+    depths, static = _options(rays, seed_depths, min_rays, claim_bandwidths, search_scale, dominance, merge_radius, tol,
                               max_iter, max_modes, prior_scale, refine_steps)
     if static["max_modes"] == 0:
         return _empty(rays.batch_shape, rays.num_rays, rays.origins.dtype)
