@@ -267,23 +267,17 @@ def meanshift(
 # Modes, exclusive support, Laplace covariance
 
 
-def _whitened_distances(rays: GazeRays, x: Float[Array, "3"]) -> tuple[Array, Array]:
+def _whitened_distances(proj: RayProjector, x: Float[Array, "3"]) -> tuple[Array, Array]:
     """``(‖d_i(x)‖ / h_i, in front and real)`` for every ray."""
-    diff = x - rays.origins
-    t = jnp.einsum("nk,nk->n", diff, rays.directions)
-    ok = (t > 0) & rays.mask
-    r2 = jnp.maximum(jnp.einsum("nk,nk->n", diff, diff) - t * t, 0.0)
-    return jnp.sqrt(r2) / (jnp.where(ok, t, 1.0) * rays.bandwidth), ok
+    _, r2, ok, inv_t = _ray_coordinates(proj, x)
+    return jnp.sqrt(r2) * inv_t / proj.bandwidth, ok
 
 
-def _dominant_share(rays: GazeRays, x: Float[Array, "3"]) -> Array:
-    diff = x - rays.origins
-    t = jnp.einsum("nk,nk->n", diff, rays.directions)
-    ok = (t > 0) & rays.mask
-    t_safe = jnp.where(ok, t, 1.0)
-    h = rays.bandwidth
-    r2 = jnp.maximum(jnp.einsum("nk,nk->n", diff, diff) - t * t, 0.0)
-    log_w = jnp.where(ok, -r2 / (2 * h * h * t_safe * t_safe) - 3 * jnp.log(h) - 2 * jnp.log(t_safe), -jnp.inf)
+def _dominant_share(proj: RayProjector, x: Float[Array, "3"]) -> Array:
+    """Largest share of one ray in the mean-shift weights ``Σ_i w_i`` at ``x`` (log-space, no underflow)."""
+    _, r2, ok, inv_t = _ray_coordinates(proj, x)
+    log_w = proj.exponent_scale * r2 * inv_t**2 + jnp.log(proj.weight_scale * inv_t**2)
+    log_w = jnp.where(ok, log_w, -jnp.inf)
     return jnp.exp(jnp.max(log_w) - jax.nn.logsumexp(log_w))
 
 
@@ -371,6 +365,7 @@ def _concurrences_one_frame(
     n = rays.num_rays
     dtype = rays.origins.dtype
     search = eqx.tree_at(lambda r: r.bandwidth, rays, rays.bandwidth * search_scale)
+    proj, search_proj = ray_projector(rays), ray_projector(search)
     seeds = rays.origins[:, None, :] + seed_depths[None, :, None] * rays.directions[:, None, :]
     seeds = seeds.reshape(-1, 3)
     seed_ok = jnp.repeat(rays.mask, seed_depths.shape[0])
@@ -382,14 +377,14 @@ def _concurrences_one_frame(
     def visit(carry, s):
         claimed, membership, modes, mode_conv, count = carry
         x = ms.points[s]
-        dist, ok = _whitened_distances(search, x)
+        dist, ok = _whitened_distances(search_proj, x)
         candidates = ok & (dist < claim_bandwidths) & ~claimed
         slot = jnp.arange(max_modes)
         near_existing = jnp.any((slot < count) & (jnp.linalg.norm(modes - x, axis=-1) < merge_radius))
         accept = (
             jnp.isfinite(score[s])
             & ~near_existing
-            & (_dominant_share(search, x) <= dominance)
+            & (_dominant_share(search_proj, x) <= dominance)
             & (jnp.sum(candidates) >= min_rays)
             & (count < max_modes)
         )
@@ -416,7 +411,7 @@ def _concurrences_one_frame(
     # the still-unclaimed rays again at each mode's refined (maximum-likelihood)
     # location, nearest mode first, and refine once more.
     first, _ = refine(membership[None, :] == slots, modes)
-    dist, ok = jax.vmap(lambda x: _whitened_distances(search, x))(first)
+    dist, ok = jax.vmap(lambda x: _whitened_distances(search_proj, x))(first)
     dist = jnp.where(valid[:, None] & ok & (dist < claim_bandwidths), dist, jnp.inf)
     nearest = jnp.argmin(dist, axis=0)
     late = (membership < 0) & jnp.isfinite(jnp.min(dist, axis=0))
@@ -426,7 +421,7 @@ def _concurrences_one_frame(
     # A wide search radius can also take in a stray ray of another group. Drop
     # members that the calibrated cone model rejects at the refined location
     # (‖d‖ > prune_bandwidths · h), drop modes left with too few rays, refine again.
-    dist, _ = jax.vmap(lambda x: _whitened_distances(rays, x))(second)
+    dist, _ = jax.vmap(lambda x: _whitened_distances(proj, x))(second)
     stray = member_mask & (dist > _PRUNE_BANDWIDTHS)
     member_mask = member_mask & ~stray
     valid = valid & (jnp.sum(member_mask, axis=1) >= min_rays)
@@ -434,7 +429,6 @@ def _concurrences_one_frame(
     membership = jnp.where(jnp.any(member_mask, axis=0), jnp.argmax(member_mask, axis=0), -1).astype(jnp.int32)
     locations, covariances = refine(member_mask, second)
     axes, semi = jax.vmap(lambda x: _region(rays, x))(locations)
-    proj = ray_projector(rays)
     values = jax.vmap(lambda x: _field_value(proj, x))(locations)
 
     def pad(a, fill=0.0):
