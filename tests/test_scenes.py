@@ -76,3 +76,28 @@ def test_meeting_transitions(meeting):
         assert right >= 0.9, f"phase {k}: count {expected} in only {100 * right:.0f} % of frames"
     errors = localisation_errors(found, scene)
     assert np.median(errors) < 0.10
+
+
+def test_party_four_groups_then_one():
+    """Party (Sec. 4.2): four groups (one of only two people) → everyone watches table tennis."""
+    scene = simulate_scene(jax.random.key(2), "party", 60)
+    found = find_concurrences_over_frames(scene.rays)
+    phase, count, truth = np.asarray(scene.phase), np.asarray(found.count), np.asarray(scene.true_count)
+    assert set(np.unique(truth[phase == 0])) >= {4} and set(np.unique(truth[phase == 1])) >= {1}
+    assert count_accuracy(count, truth) >= 0.9
+    assert np.median(localisation_errors(found, scene)) < 0.10
+
+
+def test_musical_near_parallel_rays_stretch_along_the_view():
+    """Musical (Sec. 5): near-parallel rays give a mode whose covariance is long along the rays."""
+    scene = simulate_scene(jax.random.key(3), "musical", 20)
+    found = find_concurrences_over_frames(scene.rays)
+    assert count_accuracy(found.count, scene.true_count) >= 0.9
+    assert np.all(np.isfinite(np.asarray(found.covariances)))
+    t, k = np.argwhere(np.asarray(found.valid))[0]
+    eigenvalues, eigenvectors = np.linalg.eigh(np.asarray(found.covariances[t, k]))
+    members = np.asarray(found.membership[t]) == k
+    mean_ray = np.asarray(scene.rays.directions[t])[members].mean(0)
+    assert abs(eigenvectors[:, -1] @ mean_ray) / np.linalg.norm(mean_ray) > 0.9
+    assert eigenvalues[-1] > 10 * eigenvalues[0]
+    assert coverage(found, scene) >= 0.75
