@@ -171,19 +171,7 @@ def _parse_float(cell: str, column: str, path: str, line: int) -> float:
 
 
 def _parse_frame(cell: str, path: str, line: int) -> int:
-    text = cell.strip()
-    if not text:
-        raise CLIError("empty cell in column 'frame'", path, line)
-    try:
-        return int(text)
-    except ValueError:
-        pass
-    try:
-        value = float(text)
-    except ValueError:
-        raise CLIError(f"column 'frame' is not a number: {cell!r}", path, line) from None
-    if not math.isfinite(value):
-        raise CLIError(f"column 'frame' is not finite: {cell!r}", path, line)
+    value = _parse_float(cell, "frame", path, line)
     if not value.is_integer():
         raise CLIError(f"column 'frame' must be an integer frame id, got {cell!r}", path, line)
     return int(value)
