@@ -237,11 +237,11 @@ def test_laplace_covariance_is_calibrated():
     directions = jax.vmap(sample_gaze_directions)(jax.random.split(k3, replicates), exact)
     result = jg.find_concurrences_over_frames(jg.GazeRays(origins, directions, h))
     single = np.asarray(result.count) == 1
-    assert single.mean() > 0.95
+    assert single.mean() > 0.98
     error = np.asarray(result.locations[single, 0] - target)
     m2 = np.einsum("ti,tij,tj->t", error, np.linalg.inv(np.asarray(result.covariances[single, 0])), error)
     coverage = np.mean(m2 <= chi2.ppf(0.9, 3))
-    assert 0.84 <= coverage <= 0.95, coverage
+    assert 0.85 <= coverage <= 0.95, coverage  # ±2.5 standard errors around 0.9 at 300 replicates
 
 
 def test_over_frames_matches_single_frames_and_handles_padding():
