@@ -1,0 +1,83 @@
+"""Bayesian calibration (numpyro NUTS) on simulated wearers with known truth."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxgaze as jg
+from jaxgaze.calibration_posterior import calibrate_cone_posterior
+from jaxgaze.cone import sample_points_of_regard
+
+TRUE_EYE = np.array([-0.08, 0.01, -0.10])
+TRUE_DIRECTION = np.asarray(jg.geometry.unit(jnp.array([1.0, 0.12, -0.05])))
+TRUE_H = 0.03
+
+
+def wearer_points(key, n=120, outlier_fraction=0.0):
+    """Points of regard in the camera frame drawn from the true cone, plus outliers."""
+    k_depth, k_cone, k_out = jax.random.split(key, 3)
+    rays = jg.GazeRays(np.tile(TRUE_EYE, (n, 1)), np.tile(TRUE_DIRECTION, (n, 1)), TRUE_H)
+    depth = jax.random.uniform(k_depth, (n,), minval=1.0, maxval=4.0)
+    y = np.array(sample_points_of_regard(k_cone, rays, depth))
+    m = int(outlier_fraction * n)
+    y[:m] = TRUE_EYE + np.asarray(jax.random.uniform(k_out, (m, 3), minval=-2.0, maxval=2.0)) + [2.5, 0, 0]
+    return y
+
+
+def errors(post):
+    direction_deg = np.degrees(np.arccos(np.clip(post.direction @ TRUE_DIRECTION, -1, 1)))
+    offset = post.eye_center - TRUE_EYE
+    perpendicular = offset - (offset @ TRUE_DIRECTION) * TRUE_DIRECTION
+    return direction_deg, np.linalg.norm(perpendicular)
+
+
+@pytest.fixture(scope="module")
+def posterior():
+    return calibrate_cone_posterior(wearer_points(jax.random.key(0)), key=jax.random.key(1),
+                                    num_warmup=300, num_samples=300)
+
+
+def test_posterior_recovers_the_true_ray(posterior):
+    direction_deg, perpendicular = errors(posterior)
+    assert direction_deg < 2.0
+    assert perpendicular < 0.04
+    assert abs(posterior.bandwidth - TRUE_H) < 0.3 * TRUE_H
+
+
+def test_credible_intervals_contain_truth(posterior):
+    s = posterior.samples
+    lo, hi = np.percentile(s["direction"], [0.5, 99.5], axis=0)
+    assert np.all((lo <= TRUE_DIRECTION) & (TRUE_DIRECTION <= hi))
+    lo, hi = np.percentile(s["bandwidth"], [0.5, 99.5])
+    assert lo <= TRUE_H <= hi
+
+
+def test_diagnostics_and_predictive_check(posterior):
+    summary = posterior.summary
+    assert {"mean", "sd", "ess_bulk", "r_hat"} <= set(summary.columns)
+    assert summary["ess_bulk"].min() > 50
+    assert "posterior" in posterior.idata.groups()
+    assert 0.05 < posterior.predictive_check["p_value"] < 0.95
+
+
+def test_outliers_are_absorbed():
+    post = calibrate_cone_posterior(wearer_points(jax.random.key(2), outlier_fraction=0.2),
+                                    key=jax.random.key(3), num_warmup=300, num_samples=300)
+    direction_deg, perpendicular = errors(post)
+    assert direction_deg < 2.0 and perpendicular < 0.06
+    share = post.samples["outlier_share"].mean()
+    assert 0.1 < share < 0.3
+
+
+@pytest.mark.parametrize(
+    "points, message",
+    [
+        (np.zeros((2, 3)), "at least 3"),
+        (np.zeros((5, 2)), "shape"),
+        (np.array([[1.0, 0, 0], [2, 0, np.nan], [3, 0, 0]]), "point of regard 1"),
+    ],
+)
+def test_bad_points(points, message):
+    with pytest.raises(ValueError, match=message):
+        calibrate_cone_posterior(points, key=jax.random.key(0))
