@@ -121,6 +121,10 @@ def build_parser() -> argparse.ArgumentParser:
     conc.add_argument("--out", required=True, metavar="OUT.csv", help="output CSV (replaced only on success)")
     conc.add_argument("--min-rays", type=_int_at_least(2), default=2, metavar="R",
                       help="fewest rays a concurrence must claim (default 2)")
+    conc.add_argument("--bounds", type=float, nargs=6, default=None,
+                      metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
+                      help="world box (m) where points of regard can lie; modes outside it are rejected "
+                           "(use inf/-inf for open sides)")
     conc.add_argument("--bandwidth", type=_positive_float, default=_DEFAULT_BANDWIDTH, metavar="H",
                       help=f"cone bandwidth h (rad) of every ray when INPUT has no bandwidth column "
                            f"(default {_DEFAULT_BANDWIDTH})")
@@ -420,8 +424,9 @@ def _cmd_concurrences(args) -> int:
     frame_ids, _, rays = read_rays_csv(args.input, args.bandwidth)
     _check_output_directory(args.out)
     try:
+        bounds = None if args.bounds is None else [args.bounds[:3], args.bounds[3:]]
         result = find_concurrences_in_chunks(rays, chunk=args.chunk, progress=_progress(args),
-                                             min_rays=args.min_rays)
+                                             min_rays=args.min_rays, bounds=bounds)
     except ValueError as error:
         raise CLIError(str(error), args.input) from None
     with _atomic_output(args.out) as handle:
@@ -505,7 +510,10 @@ def _cmd_demo(args) -> int:
     t_sim = time.perf_counter() - clock
 
     clock = time.perf_counter()
-    concurrences = find_concurrences_in_chunks(scene.rays, chunk=args.chunk, progress=progress, desc=scene.name)
+    # People look at things above the floor (z = 0 in the simulated world frame).
+    above_floor = [[-math.inf, -math.inf, 0.0], [math.inf, math.inf, math.inf]]
+    concurrences = find_concurrences_in_chunks(scene.rays, chunk=args.chunk, progress=progress, desc=scene.name,
+                                               bounds=above_floor)
     tracks = track_concurrences(concurrences)
     t_find = time.perf_counter() - clock
 

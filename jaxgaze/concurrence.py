@@ -350,6 +350,7 @@ def _two_stage_meanshift(rays, seeds, seed_ok, *, tol, max_iter, keep):
 def _concurrences_one_frame(
     rays: GazeRays,
     seed_depths: Float[Array, "S"],
+    bounds: Float[Array, "2 3"],
     *,
     min_rays: int,
     claim_bandwidths: float,
@@ -371,7 +372,8 @@ def _concurrences_one_frame(
     seed_ok = jnp.repeat(rays.mask, seed_depths.shape[0])
     ms = _two_stage_meanshift(search, seeds, seed_ok, tol=tol, max_iter=max_iter, keep=2 * max_modes + 2)
     # Seeds that hit the iteration cap have still only climbed f, so they stay candidates.
-    score = jnp.where(seed_ok & (ms.field_values > 0), ms.field_values, -jnp.inf)
+    inside = lambda x: jnp.all((x >= bounds[0]) & (x <= bounds[1]), axis=-1)  # noqa: E731
+    score = jnp.where(seed_ok & (ms.field_values > 0) & inside(ms.points), ms.field_values, -jnp.inf)
     order = jnp.argsort(-score)
 
     def visit(carry, s):
@@ -424,7 +426,7 @@ def _concurrences_one_frame(
     dist, _ = jax.vmap(lambda x: _whitened_distances(proj, x))(second)
     stray = member_mask & (dist > _PRUNE_BANDWIDTHS)
     member_mask = member_mask & ~stray
-    valid = valid & (jnp.sum(member_mask, axis=1) >= min_rays)
+    valid = valid & (jnp.sum(member_mask, axis=1) >= min_rays) & inside(second)
     member_mask = member_mask & valid[:, None]
     membership = jnp.where(jnp.any(member_mask, axis=0), jnp.argmax(member_mask, axis=0), -1).astype(jnp.int32)
     locations, covariances = refine(member_mask, second)
@@ -463,12 +465,12 @@ _STATIC = (
 _one_frame_jit = jax.jit(_concurrences_one_frame, static_argnames=_STATIC)
 # jax.vmap does not forward keyword arguments to in_axes, so wrap explicitly.
 _over_frames_jit = jax.jit(
-    lambda rays, depths, **kw: jax.vmap(lambda r: _concurrences_one_frame(r, depths, **kw))(rays),
+    lambda rays, depths, bounds, **kw: jax.vmap(lambda r: _concurrences_one_frame(r, depths, bounds, **kw))(rays),
     static_argnames=_STATIC,
 )
 
 
-def _options(rays, seed_depths, min_rays, claim_bandwidths, search_scale, dominance, merge_radius, tol, max_iter, max_modes,
+def _options(rays, seed_depths, bounds, min_rays, claim_bandwidths, search_scale, dominance, merge_radius, tol, max_iter, max_modes,
              prior_scale, refine_steps):
     if not isinstance(rays, GazeRays):
         raise TypeError(f"expected jaxgaze.GazeRays, got {type(rays).__name__}")
@@ -483,6 +485,13 @@ def _options(rays, seed_depths, min_rays, claim_bandwidths, search_scale, domina
     depths = np.asarray(seed_depths, dtype=float).reshape(-1)
     if depths.size == 0 or not np.all(np.isfinite(depths)) or np.any(depths <= 0):
         raise ValueError("seed_depths must be a non-empty list of positive, finite depths (metres)")
+    dtype = rays.origins.dtype
+    if bounds is None:
+        box = np.array([[-np.inf] * 3, [np.inf] * 3])
+    else:
+        box = np.asarray(bounds, dtype=float)
+        if box.shape != (2, 3) or np.any(np.isnan(box)) or not np.all(box[0] < box[1]):
+            raise ValueError(f"bounds must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max, got {bounds!r}")
     n = rays.num_rays
     k = n // min_rays if max_modes is None else min(int(max_modes), n // min_rays)
     static = dict(
@@ -490,7 +499,7 @@ def _options(rays, seed_depths, min_rays, claim_bandwidths, search_scale, domina
         merge_radius=float(merge_radius), tol=float(tol), max_iter=int(max_iter), max_modes=k,
         prior_scale=float(prior_scale), refine_steps=int(refine_steps),
     )
-    return jnp.asarray(depths, rays.origins.dtype), static
+    return jnp.asarray(depths, dtype), jnp.asarray(box, dtype), static
 
 
 def _empty(batch_shape: tuple[int, ...], n: int, dtype) -> Concurrences:
@@ -506,6 +515,7 @@ def find_concurrences(
     rays: GazeRays,
     *,
     seed_depths=DEFAULT_SEED_DEPTHS,
+    bounds=None,
     min_rays: int = 2,
     claim_bandwidths: float = 3.0,
     search_scale: float = 2.0,
@@ -522,6 +532,11 @@ def find_concurrences(
     Args:
         rays: one frame of primary gaze rays, ``(N, 3)``, world frame, metres.
         seed_depths: depths (m) of the mean-shift seeds along every ray.
+        bounds: optional world-frame box ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``
+            (m; ``±inf`` allowed) where points of regard can lie, e.g. above the
+            floor of the room. Modes outside it are rejected — a flat prior on the
+            scene volume that removes chance crossings of two rays behind a wall or
+            under the floor, which otherwise compete with real two-ray concurrences.
         min_rays: fewest rays a mode must claim to count (≥ 2).
         claim_bandwidths: a ray supports a mode if ``‖d(l, x)‖ < claim_bandwidths · search_scale · h``.
         search_scale: the mode search and the claims use the field smoothed with
@@ -542,16 +557,16 @@ def find_concurrences(
             f"find_concurrences takes one frame; rays have batch shape {rays.batch_shape}. "
             "Use find_concurrences_over_frames for a recording."
         )
-    options = (seed_depths, min_rays, claim_bandwidths, search_scale, dominance, merge_radius, tol, max_iter, max_modes,
+    options = (seed_depths, bounds, min_rays, claim_bandwidths, search_scale, dominance, merge_radius, tol, max_iter, max_modes,
                prior_scale, refine_steps)
-    if _options(rays, *options)[1]["max_modes"] == 0:
+    if _options(rays, *options)[2]["max_modes"] == 0:
         return _empty((), rays.num_rays, rays.origins.dtype)
     n = rays.num_rays
     # Pad to a multiple of 8 rays so that scenes of similar size share one compilation;
     # padded rays are masked and can never be claimed, so K stays ≤ n // min_rays.
     padded = _pad_rays(rays, -(-n // _RAY_BUCKET) * _RAY_BUCKET)
-    depths, static = _options(padded, *options)
-    result = _one_frame_jit(padded, depths, **static)
+    depths, box, static = _options(padded, *options)
+    result = _one_frame_jit(padded, depths, box, **static)
     keep = np.asarray(result.valid)
     return Concurrences(
         **{
@@ -576,6 +591,7 @@ def find_concurrences_over_frames(
     rays: GazeRays,
     *,
     seed_depths=DEFAULT_SEED_DEPTHS,
+    bounds=None,
     min_rays: int = 2,
     claim_bandwidths: float = 3.0,
     search_scale: float = 2.0,
@@ -597,11 +613,11 @@ def find_concurrences_over_frames(
     if not isinstance(rays, GazeRays) or len(rays.batch_shape) != 1:
         shape = rays.batch_shape if isinstance(rays, GazeRays) else None
         raise ValueError(f"find_concurrences_over_frames needs rays of shape (T, N, 3); batch shape is {shape}")
-    depths, static = _options(rays, seed_depths, min_rays, claim_bandwidths, search_scale, dominance, merge_radius, tol,
-                              max_iter, max_modes, prior_scale, refine_steps)
+    depths, box, static = _options(rays, seed_depths, bounds, min_rays, claim_bandwidths, search_scale, dominance,
+                                   merge_radius, tol, max_iter, max_modes, prior_scale, refine_steps)
     if static["max_modes"] == 0:
         return _empty(rays.batch_shape, rays.num_rays, rays.origins.dtype)
-    return _over_frames_jit(rays, depths, **static)
+    return _over_frames_jit(rays, depths, box, **static)
 
 
 # ---------------------------------------------------------------------------

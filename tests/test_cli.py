@@ -399,3 +399,18 @@ def test_demo_bad_figure_path_fails_before_work(tmp_path, capsys):
         status, stdout, stderr = run_main(capsys, ["demo", "--frames", "3", "--figure", figure])
         assert_failed(status, stdout, stderr, words, str(figure))
     assert os.listdir(tmp_path) == []
+
+
+def test_concurrences_bounds(tmp_path, scene_csv, capsys):
+    """A box that excludes every known meeting point leaves no rows; a reversed box is an error."""
+    out = tmp_path / "out.csv"
+    box = ["--bounds", "-100", "-100", "50", "100", "100", "60"]
+    status, _, stderr = run_main(capsys, ["concurrences", scene_csv, "--out", out, "--quiet", *CHUNK, *box])
+    assert status == 0, stderr
+    header, rows = read_output(out)
+    assert rows == []
+    out.unlink()
+    reversed_box = ["--bounds", "0", "0", "0", "-1", "1", "1"]
+    status, stdout, stderr = run_main(capsys, ["concurrences", scene_csv, "--out", out, *CHUNK, *reversed_box])
+    assert_failed(status, stdout, stderr, "bounds")
+    assert not out.exists()

@@ -102,6 +102,22 @@ def test_near_parallel_rays_give_long_covariance_along_rays():
     assert e @ np.linalg.solve(cov, e) < chi2.ppf(0.99, 3)
 
 
+def test_bounds_reject_modes_outside_the_scene_volume():
+    # Two people look down through the floor (z = 0) at a point 1 m below it, and two
+    # others at a point on a table. With the room as bounds only the table remains.
+    origins = np.array([[-2.0, 0, 1.7], [2.0, 0, 1.7], [0, 3, 1.7], [0, 6, 1.7]])
+    targets = np.array([[0.0, 0, -1.0], [0, 0, -1.0], [1, 4.5, 0.8], [1, 4.5, 0.8]])
+    rays = jg.GazeRays(origins, targets - origins, 0.02)
+    assert len(jg.find_concurrences(rays).locations) == 2
+    room = [[-10.0, -10.0, 0.0], [10.0, 10.0, 3.0]]
+    inside = jg.find_concurrences(rays, bounds=room)
+    assert len(inside.locations) == 1
+    np.testing.assert_allclose(np.asarray(inside.locations[0]), [1, 4.5, 0.8], atol=1e-3)
+    np.testing.assert_array_equal(np.asarray(inside.membership), [-1, -1, 0, 0])
+    with pytest.raises(ValueError, match="bounds"):
+        jg.find_concurrences(rays, bounds=[[0.0, 0, 0], [1.0, -1, 1]])
+
+
 def test_exclusive_support_each_ray_in_at_most_one_mode(scene_result):
     _, result = scene_result
     membership = np.asarray(result.membership)
