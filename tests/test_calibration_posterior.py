@@ -81,3 +81,32 @@ def test_outliers_are_absorbed():
 def test_bad_points(points, message):
     with pytest.raises(ValueError, match=message):
         calibrate_cone_posterior(points, key=jax.random.key(0))
+
+
+def test_calibration_spread_propagates_to_concurrence_locations():
+    """Direction draws of spread σ move the concurrence like the Laplace covariance with h = σ."""
+    from jaxgaze.calibration_posterior import propagate_to_concurrences
+    from jaxgaze.geometry import orthonormal_basis
+
+    target = np.array([0.0, 0.0, 1.2])
+    eyes = np.array([[2.0, 0.5, 1.7], [-1.5, 2.0, 1.6], [-0.5, -3.0, 1.75], [3.0, -2.0, 1.65]])
+    eye_in_camera = np.array([-0.03, 0.0, -0.10])
+    rotations, centres = [], []
+    for p in eyes:
+        v = (target - p) / np.linalg.norm(target - p)
+        u1, u2 = (np.asarray(u) for u in orthonormal_basis(jnp.asarray(v)))
+        R = np.stack([v, u1, u2], axis=1)  # camera +x along the gaze: direction (1, 0, 0) in camera frame
+        rotations.append(R)
+        centres.append(p - R @ eye_in_camera)
+    draws, sigma = 400, 0.02
+    exact = jg.GazeRays(np.tile(eye_in_camera, (4, 1)), np.tile([1.0, 0, 0], (4, 1)), sigma)
+    keys = jax.random.split(jax.random.key(9), draws)
+    directions = jax.vmap(jg.sample_gaze_directions, in_axes=(0, None))(keys, exact)
+    eye = np.broadcast_to(eye_in_camera, (draws, 4, 3))
+    ensemble = propagate_to_concurrences(eye, directions, np.full((draws, 4), sigma), np.stack(rotations),
+                                         np.stack(centres))
+    assert ensemble.found.mean() > 0.95
+    np.testing.assert_allclose(ensemble.mean[0], target, atol=0.02)
+    laplace = jg.find_concurrences(jg.GazeRays(eyes, target - eyes, sigma)).covariances[0]
+    ratio = np.trace(ensemble.covariance[0]) / np.trace(np.asarray(laplace))
+    assert 0.7 < ratio < 1.4, ratio
