@@ -188,3 +188,92 @@ def perspective_distance(
     offset = x - origin - t * direction
     d = jnp.where(in_front, offset / safe_t, 0.0)
     return d, in_front
+
+
+def similarity_alignment(
+    source: Float[Array, "M 3"], target: Float[Array, "M 3"]
+) -> tuple[Array, Float[Array, "3 3"], Float[Array, "3"]]:
+    """Least-squares similarity ``target ≈ scale · R @ source + t`` (Umeyama 1991).
+
+    Closed form: with the centred point sets ``S``, ``T`` and the cross-covariance
+    ``Σ = Tᵀ S / M = U D Vᵀ`` (SVD), ``R = U E Vᵀ`` with
+    ``E = diag(1, 1, sign(det U · det V))`` (the reflection fix, so ``det R = +1``
+    even when the best orthogonal fit is a mirror), ``scale = tr(D E) / σ²_source``
+    and ``t = μ_target − scale · R μ_source``. It minimises
+    ``Σ_i ‖target_i − (scale · R source_i + t)‖²``.
+
+    Use it to bring one world frame into another, e.g. SfM camera centres into
+    the mocap frame (Park et al. 2012, Sec. 4.1), then map points with
+    :func:`apply_similarity`.
+
+    Returns ``(scale, R, t)``: a scalar, ``(3, 3)`` and ``(3,)``.
+
+    Raises ``ValueError`` if the shapes are not ``(M, 3)`` with the same ``M ≥ 3``
+    and, for concrete (non-traced) inputs, if any value is NaN or infinite or the
+    source points are degenerate (all coincident or collinear: the rotation about
+    their line is undetermined). Under ``jit``/``vmap`` only the shape checks run.
+    """
+    source = jnp.asarray(source)
+    target = jnp.asarray(target)
+    if source.ndim != 2 or source.shape[-1] != 3:
+        raise ValueError(f"similarity_alignment: source must be (M, 3), got shape {source.shape}")
+    if target.shape != source.shape:
+        raise ValueError(
+            f"similarity_alignment: target must have the shape of source {source.shape}, got {target.shape}"
+        )
+    m = source.shape[0]
+    if m < 3:
+        raise ValueError(f"similarity_alignment: need at least 3 point pairs, got {m}")
+    dtype = jnp.result_type(source, target, jnp.float32)
+    source = source.astype(dtype)
+    target = target.astype(dtype)
+
+    if not any(isinstance(a, _jax.core.Tracer) for a in (source, target)):
+        import numpy as np
+
+        src = np.asarray(source, dtype=np.float64)
+        if not (np.all(np.isfinite(src)) and np.all(np.isfinite(np.asarray(target)))):
+            raise ValueError("similarity_alignment: source and target must be finite (no NaN or inf)")
+        sv = np.linalg.svd(src - src.mean(axis=0), compute_uv=False)
+        tol = 1000.0 * float(jnp.finfo(dtype).eps) * float(sv[0])  # rounding, not shape
+        if sv[0] == 0.0 or sv[1] <= tol:
+            raise ValueError(
+                "similarity_alignment: source points are degenerate (coincident or collinear); "
+                "need at least 3 points that span a plane"
+            )
+    return _similarity_alignment_core(source, target)
+
+
+def _similarity_alignment_core(source, target):
+    """Umeyama's closed form; no checks (see :func:`similarity_alignment`)."""
+    m = source.shape[0]
+    dtype = source.dtype
+    mu_s = jnp.mean(source, axis=0)
+    mu_t = jnp.mean(target, axis=0)
+    src = source - mu_s
+    tgt = target - mu_t
+    sigma = tgt.T @ src / m
+    U, D, Vt = jnp.linalg.svd(sigma)
+    d = jnp.sign(jnp.linalg.det(U) * jnp.linalg.det(Vt))
+    d = jnp.where(d == 0, 1.0, d).astype(dtype)
+    E = jnp.array([1.0, 1.0, 0.0], dtype=dtype) + jnp.array([0.0, 0.0, 1.0], dtype=dtype) * d
+    R = (U * E) @ Vt
+    var_s = jnp.sum(src * src) / m
+    scale = jnp.sum(D * E) / var_s
+    t = mu_t - scale * R @ mu_s
+    return scale, R, t
+
+
+def apply_similarity(
+    points: Float[Array, "... 3"], scale, R: Float[Array, "3 3"], t: Float[Array, "3"]
+) -> Float[Array, "... 3"]:
+    """``scale · R @ x + t`` for every point ``x`` along the last axis (broadcasts)."""
+    points = jnp.asarray(points)
+    return scale * jnp.einsum("ij,...j->...i", R, points) + t
+
+
+import jax as _jax  # noqa: E402  (appended section)
+
+_similarity_alignment_core = _jax.jit(_similarity_alignment_core)
+
+__all__ += ["similarity_alignment", "apply_similarity"]
