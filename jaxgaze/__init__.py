@@ -4,7 +4,14 @@ Frames and units are documented in ``docs/conventions.md``: world/head/camera
 frames, metres, radians inside (degrees only in names ending ``_deg``).
 """
 
-from jaxgaze import geometry, metrics, simulate
+from jaxgaze import geometry, metrics, poses, simulate, simulate_calibration
+from jaxgaze.calibration import CalibrationResult, ConeCalibration, calibrate_cone
+from jaxgaze.calibration_posterior import (
+    CalibrationPosterior,
+    ConcurrenceEnsemble,
+    calibrate_cone_posterior,
+    propagate_to_concurrences,
+)
 from jaxgaze.concurrence import (
     Concurrences,
     MeanShiftResult,
@@ -31,6 +38,15 @@ __all__ = [
     "geometry",
     "metrics",
     "simulate",
+    "simulate_calibration",
+    "poses",
+    "calibrate_cone",
+    "ConeCalibration",
+    "CalibrationResult",
+    "calibrate_cone_posterior",
+    "CalibrationPosterior",
+    "propagate_to_concurrences",
+    "ConcurrenceEnsemble",
     "GazeRays",
     "cone_log_density",
     "sample_gaze_directions",

@@ -22,9 +22,8 @@ the scatter of the points grows linearly with their depth from the apex.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
-import arviz as az
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -36,6 +35,9 @@ from numpyro.infer import MCMC, NUTS, Predictive, init_to_value
 from jaxgaze.cone import cone_log_density
 from jaxgaze.geometry import unit
 from jaxgaze.rays import GazeRays
+
+if TYPE_CHECKING:  # arviz is imported when a posterior is summarised: it is slow to import
+    import arviz as az
 
 __all__ = [
     "calibration_model",
@@ -99,7 +101,7 @@ class CalibrationPosterior(NamedTuple):
             ``p_value``), a check that the cone spread fits the data.
     """
 
-    idata: az.InferenceData
+    idata: "az.InferenceData"
     summary: object
     eye_center: np.ndarray
     direction: np.ndarray
@@ -143,6 +145,8 @@ def calibrate_cone_posterior(
     )
     sample_key, check_key = jax.random.split(key)
     mcmc.run(sample_key, y, **model_options)
+    import arviz as az
+
     samples = {k: np.asarray(v) for k, v in mcmc.get_samples().items()}
     idata = az.from_numpyro(mcmc)
     summary = az.summary(idata, var_names=["eye_center", "direction", "bandwidth", "outlier_share"])
