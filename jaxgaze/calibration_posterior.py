@@ -22,6 +22,7 @@ the scatter of the points grows linearly with their depth from the apex.
 
 from __future__ import annotations
 
+import functools
 from typing import TYPE_CHECKING, NamedTuple
 
 import jax
@@ -30,7 +31,7 @@ import numpy as np
 import numpyro
 import numpyro.distributions as dist
 from jaxtyping import Array, Float, PRNGKeyArray
-from numpyro.infer import MCMC, NUTS, Predictive, init_to_value
+from numpyro.infer import MCMC, NUTS
 
 from jaxgaze.cone import cone_log_density
 from jaxgaze.geometry import unit
@@ -129,22 +130,21 @@ def calibrate_cone_posterior(
     near the mode; by default they start at the camera centre looking along +x.
     """
     y = jnp.asarray(_points(points))
-    init = {
-        "eye_center": jnp.zeros(3) if init_eye_center is None else jnp.asarray(init_eye_center, y.dtype),
-        "direction_raw": (
-            jnp.array([1.0, 0.0, 0.0]) if init_direction is None else unit(jnp.asarray(init_direction, y.dtype))
-        )
-        * model_options.get("direction_concentration", 3.0),
-        "bandwidth": jnp.asarray(0.05, y.dtype),
-        "outlier_share": jnp.asarray(0.05, y.dtype),
+    concentration = model_options.get("direction_concentration", 3.0)
+    start_direction = jnp.array([1.0, 0.0, 0.0]) if init_direction is None else unit(jnp.asarray(init_direction))
+    # Starting point in numpyro's unconstrained space (log h, logit ε).
+    init_params = {
+        "eye_center": jnp.zeros(3) if init_eye_center is None else jnp.asarray(init_eye_center),
+        "direction_raw": start_direction * concentration,
+        "bandwidth": jnp.log(0.05),
+        "outlier_share": jax.scipy.special.logit(0.05),
     }
-    kernel = NUTS(calibration_model, init_strategy=init_to_value(values=init), target_accept_prob=0.9)
-    mcmc = MCMC(
-        kernel, num_warmup=num_warmup, num_samples=num_samples, num_chains=num_chains,
-        progress_bar=progress_bar, chain_method="sequential",
-    )
+    init_params = jax.tree_util.tree_map(lambda a: jnp.asarray(a, y.dtype), init_params)
+    mcmc = _sampler(num_warmup, num_samples, num_chains, progress_bar, tuple(sorted(model_options.items())))
     sample_key, check_key = jax.random.split(key)
-    mcmc.run(sample_key, y, **model_options)
+    if num_chains > 1:
+        init_params = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (num_chains,) + a.shape), init_params)
+    mcmc.run(sample_key, y, init_params=init_params)
     import arviz as az
 
     samples = {k: np.asarray(v) for k, v in mcmc.get_samples().items()}
@@ -160,6 +160,15 @@ def calibrate_cone_posterior(
         samples=samples,
         predictive_check=_predictive_check(check_key, y, samples),
     )
+
+
+@functools.lru_cache(maxsize=8)
+def _sampler(num_warmup, num_samples, num_chains, progress_bar, model_options):
+    """One MCMC object per setting, so that wearers with the same number of points share a compilation."""
+    model = functools.partial(calibration_model, **dict(model_options))
+    kernel = NUTS(model, target_accept_prob=0.9)
+    return MCMC(kernel, num_warmup=num_warmup, num_samples=num_samples, num_chains=num_chains,
+                progress_bar=progress_bar, chain_method="sequential", jit_model_args=True)
 
 
 def _whitened(points, eye_center, direction, bandwidth):
