@@ -1,9 +1,13 @@
-"""Command-line interface: ``jaxgaze demo`` and ``jaxgaze concurrences``.
+"""Command-line interface: ``jaxgaze demo``, ``jaxgaze concurrences`` and ``jaxgaze calibrate``.
 
 ``jaxgaze concurrences INPUT.csv --out OUT.csv`` finds the gaze concurrences
 (Park et al. 2012) of every frame of a recording of primary gaze rays;
 ``jaxgaze demo`` runs the same pipeline on a simulated meeting and compares
-it with the truth. Errors in the input are reported as one line on stderr,
+it with the truth; ``jaxgaze calibrate POSES_A POSES_B --out calib.json``
+calibrates wearer A's primary gaze ray (camera frame) from a calibration
+session in which A looks at B's camera, and ``jaxgaze concurrences POSES.csv
+--calibration calib.json ...`` turns raw camera poses into gaze rays with such
+calibrations. Errors in the input are reported as one line on stderr,
 ``jaxgaze: error: <what> (<file>:<line>)``, with exit status 2, and never
 leave a partial output file behind.
 """
@@ -14,21 +18,30 @@ import argparse
 import contextlib
 import csv
 import io
+import json
+import logging
 import math
 import os
 import sys
 import tempfile
 import time
 
-__all__ = ["main", "read_rays_csv", "CSV_COLUMNS", "OUTPUT_COLUMNS"]
+__all__ = ["main", "read_rays_csv", "read_calibration_json", "read_camera_poses_csv", "CSV_COLUMNS",
+           "CAMERA_POSE_COLUMNS", "OUTPUT_COLUMNS", "CALIBRATION_KEYS"]
 
 #: Required input columns (a ``bandwidth`` column is optional).
 CSV_COLUMNS = ("frame", "person", "ox", "oy", "oz", "dx", "dy", "dz")
+#: Input columns of ``concurrences --calibration``: raw camera poses, one row per (frame, person);
+#: ``q`` is the unit quaternion (w, x, y, z) of R_camera_from_world in our camera convention.
+CAMERA_POSE_COLUMNS = ("frame", "person", "qw", "qx", "qy", "qz", "cx", "cy", "cz")
+#: Keys a calibration JSON must have (written by ``jaxgaze calibrate``).
+CALIBRATION_KEYS = ("wearer", "frame", "eye_center", "direction", "bandwidth")
 #: Output columns, one row per (frame, mode).
 OUTPUT_COLUMNS = ("frame", "mode", "x", "y", "z", "var_x", "var_y", "var_z", "num_rays", "field_value")
 
 _DEFAULT_BANDWIDTH = 0.05
 _DEFAULT_CHUNK = 32
+_DEFAULT_SAMPLES = 500
 _MIN_DIRECTION_NORM = 1e-9
 _FLOAT32_MAX = 3.4028234e38
 
@@ -127,8 +140,42 @@ def build_parser() -> argparse.ArgumentParser:
                            "(use inf/-inf for open sides)")
     conc.add_argument("--bandwidth", type=_positive_float, default=_DEFAULT_BANDWIDTH, metavar="H",
                       help=f"cone bandwidth h (rad) of every ray when INPUT has no bandwidth column "
-                           f"(default {_DEFAULT_BANDWIDTH})")
+                           f"(default {_DEFAULT_BANDWIDTH}; not used with --calibration)")
+    conc.add_argument("--calibration", nargs="+", default=None, metavar="CALIB.json",
+                      help="calibrations written by 'jaxgaze calibrate', one per wearer; INPUT is then a CSV "
+                           "of raw camera poses with columns " + ", ".join(CAMERA_POSE_COLUMNS)
+                           + " (q: unit quaternion w, x, y, z of R_camera_from_world in the camera frame "
+                             "+x forward, +y left, +z up; c: camera centre, world, metres), and each person's "
+                             "gaze ray is p = R_world_from_camera eye_center + c, v = R_world_from_camera "
+                             "direction, with the calibration's bandwidth (person = the JSON's 'wearer')")
     conc.set_defaults(func=_cmd_concurrences)
+
+    calib = sub.add_parser(
+        "calibrate",
+        help="calibrate a wearer's primary gaze ray from a session of two people looking at each other's camera",
+        description="Calibrate the primary gaze ray (cone model, Park et al. 2012, Sec. 3.2) of wearer A from a "
+                    "session in which A looks at B's head-mounted camera. POSES_A and POSES_B are COLMAP "
+                    "images.txt files (.txt) or pose CSVs (.csv: frame, qw, qx, qy, qz, cx, cy, cz, with q "
+                    "the quaternion of R_camera_from_world in the camera frame +x forward, +y left, +z up); "
+                    "frames are matched by frame id. Writes a JSON with the eye centre (metres) and unit "
+                    "gaze direction in A's camera frame (+x forward, +y left, +z up) and the bandwidth h "
+                    "(radians): wearer, frame, eye_center, direction, bandwidth, num_points, num_inliers, "
+                    "method.",
+    )
+    calib.add_argument("poses_a", metavar="POSES_A", help="camera poses of the wearer (images.txt or .csv)")
+    calib.add_argument("poses_b", metavar="POSES_B", help="camera poses of the partner A looks at")
+    calib.add_argument("--out", required=True, metavar="CALIB.json", help="output JSON (replaced only on success)")
+    calib.add_argument("--posterior", default=None, metavar="POSTERIOR.nc",
+                       help="also sample the Bayesian posterior (NUTS, started at the point estimate), write "
+                            "its arviz InferenceData to this NetCDF file and a summary into the JSON")
+    calib.add_argument("--samples", type=_int_at_least(1), default=_DEFAULT_SAMPLES, metavar="N",
+                       help=f"NUTS warm-up steps and draws for --posterior (default {_DEFAULT_SAMPLES})")
+    calib.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default 0)")
+    calib.add_argument("--wearer", default=None, metavar="NAME",
+                       help="name of the wearer, matched to the 'person' column by 'concurrences "
+                            "--calibration' (default: the file name of POSES_A without its extension)")
+    calib.add_argument("-q", "--quiet", action="store_true", help="no summary line on stderr")
+    calib.set_defaults(func=_cmd_calibrate)
     return parser
 
 
@@ -265,11 +312,15 @@ def read_rays_csv(path: str, default_bandwidth: float = _DEFAULT_BANDWIDTH):
     slots masked, exactly as :meth:`GazeRays.stack` pads. Raises
     :class:`CLIError` naming the file and line of the first bad row.
     """
+    return _rays_from_rows(_read_rows(path, default_bandwidth), path)
+
+
+def _rays_from_rows(frames, path: str):
+    """``{frame: [(person, origin, direction, bandwidth, line), ...]}`` → ``(frame_ids, persons, rays)``."""
     import numpy as np
 
     from jaxgaze.rays import GazeRays
 
-    frames = _read_rows(path, default_bandwidth)
     frame_ids = sorted(frames)
     t, n = len(frame_ids), max(len(rows) for rows in frames.values())
     origins = np.zeros((t, n, 3))
@@ -292,6 +343,203 @@ def read_rays_csv(path: str, default_bandwidth: float = _DEFAULT_BANDWIDTH):
     except ValueError as error:
         raise CLIError(str(error), path) from None
     return frame_ids, persons, rays
+
+
+def _read_input_text(path: str, what: str = "input") -> str:
+    try:
+        with open(path, "rb") as handle:
+            data = handle.read()
+    except FileNotFoundError:
+        raise CLIError(f"{what} file not found", path) from None
+    except IsADirectoryError:
+        raise CLIError(f"{what} is a directory, not a file", path) from None
+    except OSError as error:
+        raise CLIError(f"cannot read {what}: {error.strerror or error}", path) from None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        line = data[: error.start].count(b"\n") + 1
+        raise CLIError(f"{what} is not UTF-8 text: {error.reason} at byte {error.start}", path, line) from None
+
+
+def _json_line(text: str, key: str) -> int | None:
+    """Line of the first ``"key"`` in a JSON text (for error messages), or ``None``."""
+    index = text.find(json.dumps(key))
+    return None if index < 0 else text.count("\n", 0, index) + 1
+
+
+def read_calibration_json(path: str) -> dict:
+    """Read a calibration JSON written by ``jaxgaze calibrate``.
+
+    Returns ``{"wearer", "eye_center" (3,), "direction" (3,) unit, "bandwidth", "path"}``
+    (camera frame: +x forward, +y left, +z up; metres and radians). Raises
+    :class:`CLIError` naming the file (and line where known) for malformed JSON,
+    a missing key, a wrong shape, a non-finite value, a zero direction, a
+    non-positive bandwidth or a frame other than ``"camera"``.
+    """
+    import numpy as np
+
+    text = _read_input_text(path, "calibration")
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise CLIError(f"calibration is not valid JSON: {error.msg}", path, error.lineno) from None
+    if not isinstance(data, dict):
+        raise CLIError("calibration must be a JSON object with keys " + ", ".join(CALIBRATION_KEYS), path, 1)
+    missing = [k for k in CALIBRATION_KEYS if k not in data]
+    if missing:
+        raise CLIError("calibration is missing key" + ("s " if len(missing) > 1 else " ")
+                       + ", ".join(f"'{k}'" for k in missing), path)
+    wearer = data["wearer"]
+    if not isinstance(wearer, str) or not wearer.strip():
+        raise CLIError("calibration 'wearer' must be a non-empty string", path, _json_line(text, "wearer"))
+    if data["frame"] != "camera":
+        raise CLIError(f"calibration 'frame' must be \"camera\", got {data['frame']!r}", path,
+                       _json_line(text, "frame"))
+
+    def vector(key: str):
+        value = data[key]
+        ok = (isinstance(value, list) and len(value) == 3
+              and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in value))
+        if not ok:
+            raise CLIError(f"calibration '{key}' must be a list of 3 numbers, got {json.dumps(value)}", path,
+                           _json_line(text, key))
+        array = np.asarray(value, dtype=np.float64)
+        if not np.all(np.isfinite(array)):
+            raise CLIError(f"calibration '{key}' is not finite", path, _json_line(text, key))
+        return array
+
+    eye_center = vector("eye_center")
+    direction = vector("direction")
+    norm = float(np.linalg.norm(direction))
+    if norm < _MIN_DIRECTION_NORM:
+        raise CLIError("calibration 'direction' has zero length", path, _json_line(text, "direction"))
+    bandwidth = data["bandwidth"]
+    if (not isinstance(bandwidth, (int, float)) or isinstance(bandwidth, bool) or not math.isfinite(bandwidth)
+            or bandwidth <= 0):
+        raise CLIError(f"calibration 'bandwidth' must be a positive number (radians), got {json.dumps(bandwidth)}",
+                       path, _json_line(text, "bandwidth"))
+    return {"wearer": wearer.strip(), "eye_center": eye_center, "direction": direction / norm,
+            "bandwidth": float(bandwidth), "path": path}
+
+
+def read_camera_poses_csv(path: str) -> dict:
+    """Read raw camera poses, one row per (frame, person), columns :data:`CAMERA_POSE_COLUMNS`.
+
+    Returns ``{frame: [(person, R_world_from_camera (3, 3), centre (3,), line), ...]}``.
+    ``(qw, qx, qy, qz)`` is the unit quaternion of ``R_camera_from_world`` in our
+    camera convention (+x forward, +y left, +z up), checked as by
+    :func:`jaxgaze.poses.read_pose_csv` (``|‖q‖ − 1| ≤ 1e-3``); ``(cx, cy, cz)``
+    is the camera centre in the world (metres). Raises :class:`CLIError`.
+    """
+    import numpy as np
+
+    from jaxgaze import poses as poses_module
+
+    text = _read_input_text(path)
+    reader = csv.reader(io.StringIO(text, newline=""), strict=True)
+    rows = []
+    try:
+        header = None
+        for row in reader:
+            if any(cell.strip() for cell in row):
+                header = row
+                break
+        if header is None:
+            raise CLIError("input is empty: expected a header row with columns " + ", ".join(CAMERA_POSE_COLUMNS),
+                           path, max(reader.line_num, 1))
+        header_line = reader.line_num
+        names = [cell.strip().lower() for cell in header]
+        duplicated = sorted({n for n in names if names.count(n) > 1 and n})
+        if duplicated:
+            raise CLIError(f"duplicate column '{duplicated[0]}' in the header", path, header_line)
+        missing = [c for c in CAMERA_POSE_COLUMNS if c not in names]
+        if missing:
+            raise CLIError(
+                "missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
+                + " in the header (need " + ", ".join(CAMERA_POSE_COLUMNS) + ")", path, header_line)
+        index = {name: names.index(name) for name in CAMERA_POSE_COLUMNS}
+        seen: dict[tuple[int, str], int] = {}
+        for row in reader:
+            line = reader.line_num
+            if not any(cell.strip() for cell in row):
+                continue
+            if len(row) != len(header):
+                raise CLIError(f"expected {len(header)} fields as in the header, got {len(row)}", path, line)
+            frame = _parse_frame(row[index["frame"]], path, line)
+            person = row[index["person"]].strip()
+            if not person:
+                raise CLIError("empty cell in column 'person'", path, line)
+            q = [_parse_float(row[index[c]], c, path, line) for c in ("qw", "qx", "qy", "qz")]
+            centre = [_parse_float(row[index[c]], c, path, line) for c in ("cx", "cy", "cz")]
+            try:
+                poses_module._check_quaternion(q, path, line)
+            except poses_module.PoseFileError as error:
+                raise CLIError(_pose_error_text(error), path, line) from None
+            first = seen.setdefault((frame, person), line)
+            if first != line:
+                raise CLIError(f"duplicate pose for frame {frame}, person '{person}' (first on line {first})",
+                               path, line)
+            rows.append((frame, person, q, centre, line))
+    except csv.Error as error:
+        raise CLIError(f"malformed CSV: {error}", path, reader.line_num) from None
+    if not rows:
+        raise CLIError("no data rows after the header", path, header_line)
+    q = np.asarray([r[2] for r in rows], dtype=np.float64)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    R_world_from_camera = np.swapaxes(poses_module._quat_to_matrix(q), -1, -2)
+    frames: dict[int, list] = {}
+    for (frame, person, _, centre, line), R in zip(rows, R_world_from_camera):
+        frames.setdefault(frame, []).append((person, R, np.asarray(centre), line))
+    return frames
+
+
+def _calibrated_rows(path: str, calibrations: dict) -> dict:
+    """Gaze rays ``{frame: [(person, origin, direction, bandwidth, line), ...]}`` from raw camera poses.
+
+    ``origin = R_world_from_camera @ eye_center + c`` and
+    ``direction = R_world_from_camera @ direction`` with the person's calibration.
+    """
+    frames = {}
+    for frame, poses in read_camera_poses_csv(path).items():
+        rays = []
+        for person, R, centre, line in poses:
+            calibration = calibrations.get(person)
+            if calibration is None:
+                known = ", ".join(f"'{w}'" for w in sorted(calibrations))
+                raise CLIError(f"no calibration for person '{person}' (calibrated wearers: {known})", path, line)
+            origin = R @ calibration["eye_center"] + centre
+            direction = R @ calibration["direction"]
+            rays.append((person, tuple(origin.tolist()), tuple(direction.tolist()), calibration["bandwidth"], line))
+        frames[frame] = rays
+    return frames
+
+
+def _pose_error_text(error) -> str:
+    """The message of a :class:`~jaxgaze.poses.PoseFileError` without its ``path, line N: `` prefix."""
+    text = str(error)
+    where = error.path if error.line is None else f"{error.path}, line {error.line}"
+    return text[len(where) + 2:] if text.startswith(where + ": ") else text
+
+
+def _read_poses(path: str):
+    """Camera poses from a COLMAP ``images.txt`` (``.txt``) or a pose CSV (``.csv``)."""
+    from jaxgaze.poses import PoseFileError, read_colmap_images, read_pose_csv
+
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in (".txt", ".csv"):
+        raise CLIError(f"unknown pose file type '{ext}': expected a COLMAP images.txt (.txt) or a pose CSV (.csv)",
+                       path)
+    if not os.path.exists(path):
+        raise CLIError("pose file not found", path)
+    if os.path.isdir(path):
+        raise CLIError("pose file is a directory, not a file", path)
+    try:
+        return read_colmap_images(path) if ext == ".txt" else read_pose_csv(path)
+    except PoseFileError as error:
+        raise CLIError(_pose_error_text(error), error.path, error.line) from None
+    except OSError as error:
+        raise CLIError(f"cannot read pose file: {error.strerror or error}", path) from None
 
 
 # ---------------------------------------------------------------------------
@@ -421,7 +669,17 @@ def _check_output_directory(path: str, what: str = "output") -> None:
 
 
 def _cmd_concurrences(args) -> int:
-    frame_ids, _, rays = read_rays_csv(args.input, args.bandwidth)
+    if args.calibration:
+        calibrations = {}
+        for path in args.calibration:
+            calibration = read_calibration_json(path)
+            first = calibrations.setdefault(calibration["wearer"], calibration)
+            if first is not calibration:
+                raise CLIError(f"two calibrations for wearer '{calibration['wearer']}' (the other is "
+                               f"{first['path']})", path)
+        frame_ids, _, rays = _rays_from_rows(_calibrated_rows(args.input, calibrations), args.input)
+    else:
+        frame_ids, _, rays = read_rays_csv(args.input, args.bandwidth)
     _check_output_directory(args.out)
     try:
         bounds = None if args.bounds is None else [args.bounds[:3], args.bounds[3:]]
@@ -434,6 +692,139 @@ def _cmd_concurrences(args) -> int:
     if not args.quiet:
         print(f"jaxgaze: {rows} concurrence(s) in {len(frame_ids)} frame(s) written to {args.out}",
               file=sys.stderr)
+    return 0
+
+
+@contextlib.contextmanager
+def _atomic_path(path: str, what: str = "output"):
+    """Like :func:`_atomic_output`, for writers that want a file name: yield a temporary path next to
+    ``path`` and ``os.replace`` it onto ``path`` only on success."""
+    target = os.path.abspath(path)
+    try:
+        fd, tmp = tempfile.mkstemp(dir=os.path.dirname(target), prefix=f".{os.path.basename(target)}.",
+                                   suffix=".tmp")
+        os.close(fd)
+    except OSError as error:
+        raise CLIError(f"cannot write {what}: {error.strerror or error}", path) from None
+    try:
+        try:
+            file_mode = os.stat(target).st_mode & 0o7777
+        except OSError:
+            umask = os.umask(0)
+            os.umask(umask)
+            file_mode = 0o666 & ~umask
+        os.chmod(tmp, file_mode)
+        yield tmp
+        os.replace(tmp, target)
+    except OSError as error:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise CLIError(f"cannot write {what}: {error.strerror or error}", path) from None
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _finite_extreme(values, pick):
+    """``pick`` (min or max) of the finite values, or ``None`` when there are none (r-hat of one chain)."""
+    finite = [float(v) for v in values if math.isfinite(float(v))]
+    return pick(finite) if finite else None
+
+
+def _cmd_calibrate(args) -> int:
+    import jax
+    import numpy as np
+
+    from jaxgaze.calibration import calibrate_cone
+    from jaxgaze.poses import match_frames, points_of_regard
+
+    wearer = args.wearer if args.wearer is not None else os.path.splitext(os.path.basename(args.poses_a))[0]
+    if not wearer.strip():
+        raise CLIError("--wearer must not be empty")
+    _check_output_directory(args.out)
+    if args.posterior is not None:
+        _check_output_directory(args.posterior, "posterior")
+        if os.path.abspath(args.posterior) == os.path.abspath(args.out):
+            raise CLIError("--posterior and --out must be different files", args.out)
+    poses_a = _read_poses(args.poses_a)
+    poses_b = _read_poses(args.poses_b)
+    try:
+        poses_a, poses_b = match_frames(poses_a, poses_b, by="frame")
+    except ValueError:
+        raise CLIError(f"no matching frames: POSES_A and POSES_B share no frame id "
+                       f"({poses_a.num_frames} and {poses_b.num_frames} poses; other file: {args.poses_b})",
+                       args.poses_a) from None
+    if poses_a.num_frames < 3:
+        raise CLIError(f"only {poses_a.num_frames} frame(s) in common with {args.poses_b}; calibration needs "
+                       f"at least 3", args.poses_a)
+    points = points_of_regard(poses_a, poses_b)
+    key = jax.random.key(args.seed)
+    try:
+        fit = calibrate_cone(points, key=key, throw=False)
+    except ValueError as error:
+        raise CLIError(f"calibration failed: {error}", args.poses_a) from None
+    if not bool(fit.succeeded):
+        raise CLIError(f"calibration failed: {fit.message}", args.poses_a)
+    eye_center = np.asarray(fit.eye_center, dtype=np.float64)
+    direction = np.asarray(fit.direction, dtype=np.float64)
+    direction = direction / np.linalg.norm(direction)
+    record = {
+        "wearer": wearer.strip(),
+        "frame": "camera",
+        "units": "metres (eye_center), unit vector (direction), radians (bandwidth); camera frame of the "
+                 "wearer: +x forward (optical axis), +y left, +z up",
+        "eye_center": [float(x) for x in eye_center],
+        "direction": [float(x) for x in direction],
+        "bandwidth": float(fit.bandwidth),
+        "num_points": int(points.shape[0]),
+        "num_inliers": int(np.sum(np.asarray(fit.inliers))),
+        "method": "ransac+cone",
+    }
+    if args.posterior is None:
+        with _atomic_output(args.out) as handle:
+            handle.write(json.dumps(record, indent=2, allow_nan=False) + "\n")
+    else:
+        from jaxgaze.calibration_posterior import calibrate_cone_posterior
+
+        import arviz
+
+        # With one chain arviz logs that it cannot compute r-hat (null in the JSON): keep stderr to one line.
+        arviz_log = getattr(arviz, "_log", None) or logging.getLogger("arviz")
+        level = arviz_log.level
+        arviz_log.setLevel(logging.ERROR)
+        try:
+            post = calibrate_cone_posterior(points, key=jax.random.fold_in(key, 1), num_warmup=args.samples,
+                                            num_samples=args.samples, init_eye_center=eye_center,
+                                            init_direction=direction)
+        except ValueError as error:
+            raise CLIError(f"posterior sampling failed: {error}", args.poses_a) from None
+        finally:
+            arviz_log.setLevel(level)
+        summary = post.summary
+        record["posterior"] = {
+            "eye_center_mean": [float(x) for x in post.eye_center],
+            "direction_mean": [float(x) for x in post.direction],
+            "bandwidth_mean": float(post.bandwidth),
+            "r_hat_max": _finite_extreme(np.asarray(summary["r_hat"], dtype=float), max),
+            "ess_bulk_min": _finite_extreme(np.asarray(summary["ess_bulk"], dtype=float), min),
+            "num_samples": int(args.samples),
+            "num_warmup": int(args.samples),
+            "file": os.path.basename(args.posterior),
+        }
+        with _atomic_path(args.posterior, "posterior") as tmp:
+            try:
+                post.idata.to_netcdf(tmp)
+            except (ValueError, RuntimeError) as error:  # netCDF back-end errors
+                raise CLIError(f"cannot write posterior: {error}", args.posterior) from None
+            with _atomic_output(args.out) as handle:
+                handle.write(json.dumps(record, indent=2, allow_nan=False) + "\n")
+    if not args.quiet:
+        angle = math.degrees(math.atan2(math.hypot(direction[1], direction[2]), direction[0]))
+        print(f"jaxgaze: calibrated '{record['wearer']}' from {record['num_points']} frame(s), "
+              f"{record['num_inliers']} inlier(s): eye centre ({', '.join(f'{x:.3f}' for x in eye_center)}) m, "
+              f"{angle:.1f}° off the optical axis, h = {record['bandwidth']:.4f} rad; written to {args.out}"
+              + (f" and {args.posterior}" if args.posterior else ""), file=sys.stderr)
     return 0
 
 

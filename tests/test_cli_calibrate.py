@@ -1,0 +1,443 @@
+"""``jaxgaze calibrate`` and ``jaxgaze concurrences --calibration``.
+
+A simulated calibration session (two wearers looking at each other's camera)
+is written as a pose CSV (wearer A) and a COLMAP ``images.txt`` (wearer B); the
+command must recover A's primary gaze ray. A tiny hand-made scene of three
+calibrated wearers whose rays meet at known points checks the concurrences path.
+Every failure is status 2, one stderr line, and no output file.
+"""
+
+import csv
+import json
+import math
+import os
+
+import jax
+import numpy as np
+import pytest
+
+from jaxgaze.cli import CAMERA_POSE_COLUMNS, CSV_COLUMNS, OUTPUT_COLUMNS, main
+from jaxgaze.geometry import rotation_matrix_to_quaternion
+from jaxgaze.poses import CameraPoses, write_colmap_images, write_pose_csv
+from jaxgaze.simulate_calibration import simulate_calibration_session
+
+DATA = os.path.join(os.path.dirname(__file__), "data")
+POSE_HEADER = "frame,qw,qx,qy,qz,cx,cy,cz\n"
+
+
+def run_main(capsys, argv):
+    status = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def assert_failed(status, stdout, stderr, *words):
+    assert status == 2
+    assert stdout == ""
+    lines = stderr.splitlines()
+    assert len(lines) == 1, stderr
+    assert lines[0].startswith("jaxgaze: error: ")
+    for word in words:
+        assert word in lines[0], (word, lines[0])
+    assert "Traceback" not in stderr
+
+
+def angle_deg(u, v):
+    u, v = np.asarray(u, float), np.asarray(v, float)
+    cos = np.dot(u, v) / (np.linalg.norm(u) * np.linalg.norm(v))
+    return math.degrees(math.acos(min(1.0, max(-1.0, cos))))
+
+
+def perpendicular_error(estimate, truth, direction):
+    """Distance between two eye centres across the gaze direction (depth along it is poorly observed)."""
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    e = np.asarray(estimate, float) - np.asarray(truth, float)
+    return float(np.linalg.norm(e - np.dot(e, d) * d))
+
+
+# ---------------------------------------------------------------------------
+# calibrate
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    """Wearer A as a pose CSV ``alice.csv``, wearer B as COLMAP ``bob.txt``; with the truth."""
+    s = simulate_calibration_session(jax.random.key(0), num_frames=80)
+    directory = tmp_path_factory.mktemp("session")
+    frames = np.asarray(s.frame_ids)
+    a = CameraPoses(np.asarray(s.R_camera_from_world_a, float), np.asarray(s.centers_a, float), frames)
+    b = CameraPoses(np.asarray(s.R_camera_from_world_b, float), np.asarray(s.centers_b, float), frames)
+    write_pose_csv(directory / "alice.csv", a)
+    write_colmap_images(directory / "bob.txt", b)
+    return {
+        "dir": directory, "a": directory / "alice.csv", "b": directory / "bob.txt", "poses_a": a, "poses_b": b,
+        "eye_a": np.asarray(s.eye_center_a), "dir_a": np.asarray(s.direction_a),
+        "eye_b": np.asarray(s.eye_center_b), "dir_b": np.asarray(s.direction_b),
+    }
+
+
+def test_calibrate_with_posterior(session, tmp_path, capsys):
+    import arviz
+
+    out, post = tmp_path / "calib.json", tmp_path / "posterior.nc"
+    status, stdout, stderr = run_main(
+        capsys, ["calibrate", session["a"], session["b"], "--out", out, "--posterior", post,
+                 "--samples", "50", "--seed", "0", "--wearer", "ann"])
+    assert status == 0, stderr
+    assert stdout == ""
+    assert len(stderr.splitlines()) == 1 and stderr.startswith("jaxgaze: calibrated 'ann' from 80 frame(s)")
+    assert sorted(os.listdir(tmp_path)) == ["calib.json", "posterior.nc"]  # no temporary file left
+
+    record = json.loads(out.read_text())
+    assert record["wearer"] == "ann" and record["frame"] == "camera" and record["method"] == "ransac+cone"
+    assert record["num_points"] == 80 and 0.25 * 80 <= record["num_inliers"] <= 80
+    assert abs(np.linalg.norm(record["direction"]) - 1) < 1e-9
+    assert angle_deg(record["direction"], session["dir_a"]) < 2.0
+    assert perpendicular_error(record["eye_center"], session["eye_a"], session["dir_a"]) < 0.04
+    assert 0.005 < record["bandwidth"] < 0.1  # the simulated eye-in-head spread is 0.03 rad
+
+    summary = record["posterior"]
+    assert angle_deg(summary["direction_mean"], session["dir_a"]) < 2.0
+    assert perpendicular_error(summary["eye_center_mean"], session["eye_a"], session["dir_a"]) < 0.04
+    assert 0.005 < summary["bandwidth_mean"] < 0.1
+    assert summary["r_hat_max"] is None or math.isfinite(summary["r_hat_max"])  # one chain: no r-hat
+    assert summary["ess_bulk_min"] > 0
+
+    idata = arviz.from_netcdf(post)
+    assert idata.posterior["eye_center"].shape[:2] == (1, 50)
+    assert idata.posterior["bandwidth"].shape == (1, 50)
+
+
+def test_calibrate_point_estimate_colmap_wearer(session, tmp_path, capsys):
+    """B (COLMAP) calibrated against A (CSV); the wearer defaults to the stem of POSES_A."""
+    out = tmp_path / "bob.json"
+    out.write_text("old\n")  # replaced
+    status, stdout, stderr = run_main(capsys, ["calibrate", session["b"], session["a"], "--out", out, "-q"])
+    assert status == 0, stderr
+    assert stdout == "" and stderr == ""
+    record = json.loads(out.read_text())
+    assert record["wearer"] == "bob" and "posterior" not in record
+    assert set(record) >= {"wearer", "frame", "eye_center", "direction", "bandwidth", "num_points",
+                           "num_inliers", "method"}
+    assert angle_deg(record["direction"], session["dir_b"]) < 2.0
+    # 80 frames pin B's eye centre less tightly than A's (4.3 cm across the gaze with this session).
+    assert perpendicular_error(record["eye_center"], session["eye_b"], session["dir_b"]) < 0.06
+    assert sorted(os.listdir(tmp_path)) == ["bob.json"]
+
+
+def _write_poses(path, rows, header=POSE_HEADER):
+    path.write_text(header + "".join(",".join(str(x) for x in row) + "\n" for row in rows))
+    return path
+
+
+def _behind_camera(directory):
+    """A at the origin looking along world +x; B always behind A: the points of regard have x < 0."""
+    a = _write_poses(directory / "a.csv", [(f, 1, 0, 0, 0, 0, 0, 0) for f in range(6)])
+    b = _write_poses(directory / "b.csv", [(f, 1, 0, 0, 0, -2 - 0.1 * f, 0.05 * f, 0.02 * f) for f in range(6)])
+    return a, b
+
+
+def _csv_lines(session):
+    with open(session["a"]) as f:
+        return f.read().splitlines(keepends=True)
+
+
+def _non_unit(session, directory):
+    lines = _csv_lines(session)
+    cells = lines[4].split(",")
+    cells[1] = str(2 * float(cells[1]))  # qw doubled: not unit
+    lines[4] = ",".join(cells)
+    path = directory / "bad.csv"
+    path.write_text("".join(lines))
+    return path, session["b"]
+
+
+def _broken_colmap(session, directory):
+    path = directory / "images.txt"
+    path.write_text("# comment\n1 1 0 0 0 0 0 0 1 frame_000001.jpg\n\n2 1 0 0\n\n")
+    return session["a"], path
+
+
+def _shifted_frames(session, directory):
+    p = session["poses_a"]
+    path = directory / "far.csv"
+    write_pose_csv(path, p._replace(frame_ids=p.frame_ids + 1000))
+    return session["a"], path
+
+
+def _two_frames(session, directory):
+    path = directory / "two.csv"
+    write_pose_csv(path, session["poses_b"].select(np.array([3, 7])))
+    return session["a"], path
+
+
+CALIBRATE_FAILURES = {
+    # name: (make(session, dir) -> (POSES_A, POSES_B), extra args, expected words, where: 'a', 'b', 'out', 'post', line)
+    "missing file": (lambda s, d: (d / "nope.csv", s["b"]), [], ["pose file not found"], ("a", None)),
+    "unknown type": (lambda s, d: (s["a"], s["b"].with_suffix(".dat")), [], ["unknown pose file type '.dat'"],
+                     ("b", None)),
+    "non-unit quaternion": (_non_unit, [], ["quaternion", "is not unit"], ("a", 5)),
+    "broken colmap": (_broken_colmap, [], ["expected 10 fields"], ("b", 4)),
+    "no matching frames": (_shifted_frames, [], ["no matching frames"], ("a", None)),
+    "two frames": (_two_frames, [], ["only 2 frame(s) in common", "at least 3"], ("a", None)),
+    "behind camera": (lambda s, d: _behind_camera(d), [], ["calibration failed", "behind the camera"], ("a", None)),
+    "unwritable out": (lambda s, d: (s["a"], s["b"]), ["--out", "{dir}/missing/c.json"],
+                       ["cannot write output: directory does not exist"], ("out", None)),
+    "unwritable posterior": (lambda s, d: (s["a"], s["b"]), ["--posterior", "{dir}/missing/p.nc"],
+                             ["cannot write posterior: directory does not exist"], ("post", None)),
+}
+
+
+@pytest.mark.parametrize("name", list(CALIBRATE_FAILURES))
+def test_calibrate_failure_modes(session, tmp_path, capsys, name):
+    make, extra, words, (where, line) = CALIBRATE_FAILURES[name]
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    poses_a, poses_b = make(session, inputs)
+    outputs = tmp_path / "out"
+    outputs.mkdir()
+    kept = outputs / "calib.json"
+    kept.write_text("precious\n")
+    extra = [x.format(dir=outputs) for x in extra]
+    argv = ["calibrate", poses_a, poses_b, "--out", kept, *extra]
+    before = sorted(os.listdir(outputs)), sorted(os.listdir(inputs))
+    status, stdout, stderr = run_main(capsys, argv)
+    path = {"a": poses_a, "b": poses_b, "out": argv[argv.index("--out", 4) + 1] if "--out" in extra else kept,
+            "post": extra[-1] if "--posterior" in extra else None}[where]
+    assert_failed(status, stdout, stderr, *words)
+    assert stderr.rstrip("\n").endswith(f"({path})" if line is None else f"({path}:{line})")
+    assert (sorted(os.listdir(outputs)), sorted(os.listdir(inputs))) == before  # no output, no temporary file
+    assert kept.read_text() == "precious\n"
+
+
+def test_calibrate_json_write_failure_leaves_nothing(session, tmp_path, capsys, monkeypatch):
+    real_replace = os.replace
+
+    def full_disk(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", full_disk)
+    out = tmp_path / "c.json"
+    status, stdout, stderr = run_main(capsys, ["calibrate", session["a"], session["b"], "--out", out])
+    monkeypatch.setattr(os, "replace", real_replace)
+    assert_failed(status, stdout, stderr, "cannot write output: No space left on device", str(out))
+    assert os.listdir(tmp_path) == []
+
+
+def test_calibrate_posterior_written_only_with_the_json(session, tmp_path, capsys, monkeypatch):
+    """If the JSON cannot be written, the NetCDF is not left behind either (the sampler is faked: fast)."""
+    import arviz
+    import pandas as pd
+
+    import jaxgaze.calibration_posterior as calibration_posterior
+
+    def fake_posterior(points, **kwargs):
+        idata = arviz.from_dict(posterior={"bandwidth": np.full((2, 5), 0.03)})
+        summary = pd.DataFrame({"r_hat": [1.01, np.nan], "ess_bulk": [40.0, 12.0]})
+        return calibration_posterior.CalibrationPosterior(
+            idata, summary, np.asarray(kwargs["init_eye_center"]), np.asarray(kwargs["init_direction"]), 0.03,
+            {}, {})
+
+    monkeypatch.setattr(calibration_posterior, "calibrate_cone_posterior", fake_posterior)
+    out, post = tmp_path / "c.json", tmp_path / "p.nc"
+    status, _, stderr = run_main(capsys, ["calibrate", session["a"], session["b"], "--out", out,
+                                          "--posterior", post, "-q"])
+    assert status == 0, stderr
+    summary = json.loads(out.read_text())["posterior"]
+    assert summary["r_hat_max"] == 1.01 and summary["ess_bulk_min"] == 12.0
+    assert arviz.from_netcdf(post).posterior["bandwidth"].shape == (2, 5)
+    out.unlink()
+    post.unlink()
+
+    real_replace = os.replace
+
+    def json_fails(src, dst):
+        if str(dst).endswith(".json"):
+            raise OSError(28, "No space left on device")
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", json_fails)
+    status, stdout, stderr = run_main(capsys, ["calibrate", session["a"], session["b"], "--out", out,
+                                               "--posterior", post])
+    monkeypatch.setattr(os, "replace", real_replace)
+    assert_failed(status, stdout, stderr, "cannot write output: No space left on device", str(out))
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("argv", [["calibrate", "a.csv", "b.csv"], ["calibrate", "a.csv", "--out", "c.json"],
+                                  ["calibrate", "a.csv", "b.csv", "--out", "c.json", "--samples", "0"]])
+def test_calibrate_usage_errors(argv, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert "usage: jaxgaze" in capsys.readouterr().err
+
+
+def test_calibrate_help(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["calibrate", "--help"])
+    assert info.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "+x forward, +y left, +z up" in text and "--posterior" in text and "radians" in text
+
+
+# ---------------------------------------------------------------------------
+# concurrences --calibration
+
+# Three wearers' calibrations (camera frame: +x forward, +y left, +z up).
+WEARERS = {
+    "ann": ((0.06, 0.00, -0.08), (1.0, 0.05, 0.03), 0.03),
+    "ben": ((0.04, 0.02, -0.10), (1.0, -0.04, 0.02), 0.04),
+    "cat": ((0.05, -0.01, -0.09), (1.0, 0.00, -0.05), 0.035),
+}
+# frame -> (point looked at, {wearer: eye position in the world})
+SCENE = {
+    4: ((1.0, 0.5, 1.2), {"ann": (2.8, 0.3, 1.6), "ben": (0.2, 2.1, 1.7), "cat": (-0.6, -0.7, 1.5)}),
+    5: ((-0.5, 1.0, 0.9), {"ann": (1.5, 1.2, 1.6), "ben": (-0.3, 3.0, 1.65), "cat": (-2.2, -0.4, 1.55)}),
+}
+
+
+def _frame_of(forward, helper):
+    """Right-handed orthonormal basis (columns) with first axis ``forward``."""
+    x = forward / np.linalg.norm(forward)
+    y = np.cross(helper, x)
+    y /= np.linalg.norm(y)
+    return np.stack([x, y, np.cross(x, y)], axis=1)
+
+
+def calibrated_scene_rows():
+    """Pose rows (frame, person, q of R_camera_from_world, centre) and the equivalent world rays."""
+    poses, rays = [], []
+    for frame, (target, eyes) in SCENE.items():
+        for k, (person, eye_world) in enumerate(eyes.items()):
+            eye_cam, dir_cam, h = (np.asarray(x, float) for x in WEARERS[person])
+            eye_world = np.asarray(eye_world)
+            look = np.asarray(target) - eye_world
+            # R_world_from_camera maps the calibrated direction onto the line of sight, with some roll.
+            roll = np.array([0.0, math.sin(0.3 * k), math.cos(0.3 * k)])
+            R = _frame_of(look, roll) @ _frame_of(dir_cam, np.array([0.0, 0.0, 1.0])).T
+            centre = eye_world - R @ eye_cam
+            with jax.enable_x64(True):
+                q = np.asarray(rotation_matrix_to_quaternion(np.asarray(R.T)), dtype=float)
+            poses.append([frame, person, *(repr(float(x)) for x in q), *(repr(float(x)) for x in centre)])
+            rays.append([frame, person, *eye_world, *(R @ dir_cam / np.linalg.norm(dir_cam)), float(h)])
+    return poses, rays
+
+
+def write_calibrations(directory, people=WEARERS):
+    paths = []
+    for person, (eye, direction, h) in people.items():
+        path = directory / f"cli_calib_{person}.json"
+        path.write_text(json.dumps({"wearer": person, "frame": "camera", "eye_center": list(eye),
+                                    "direction": list(direction), "bandwidth": h, "method": "hand-made"},
+                                   indent=2))
+        paths.append(path)
+    return paths
+
+
+def write_rows(path, header, rows):
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        writer.writerows(rows)
+    return path
+
+
+def read_output(path):
+    with open(path, newline="") as f:
+        reader = csv.reader(f)
+        return next(reader), list(reader)
+
+
+def test_concurrences_with_calibration(tmp_path, capsys):
+    poses, rays = calibrated_scene_rows()
+    src = write_rows(tmp_path / "poses.csv", CAMERA_POSE_COLUMNS, poses)
+    calibrations = write_calibrations(tmp_path)
+    out = tmp_path / "out.csv"
+    status, stdout, stderr = run_main(capsys, ["concurrences", src, "--calibration", *calibrations, "--out", out,
+                                               "--chunk", "2"])
+    assert status == 0, stderr
+    assert stdout == ""
+    assert stderr.splitlines() == [f"jaxgaze: 2 concurrence(s) in 2 frame(s) written to {out}"]
+    header, rows = read_output(out)
+    assert tuple(header) == OUTPUT_COLUMNS
+    assert [int(r[0]) for r in rows] == sorted(SCENE)
+    for row in rows:
+        target = np.asarray(SCENE[int(row[0])][0])
+        location = np.array([float(x) for x in row[2:5]])
+        assert np.linalg.norm(location - target) < 5e-3, (row, target)
+        assert int(row[8]) == 3
+
+    # The same rays written out by hand go through the plain path to the same result.
+    plain = write_rows(tmp_path / "rays.csv", CSV_COLUMNS + ("bandwidth",), rays)
+    status, _, stderr = run_main(capsys, ["concurrences", plain, "--out", tmp_path / "plain.csv", "-q",
+                                          "--chunk", "2"])
+    assert status == 0, stderr
+    _, plain_rows = read_output(tmp_path / "plain.csv")
+    assert np.allclose(np.array(plain_rows, dtype=float), np.array(rows, dtype=float), rtol=1e-4, atol=1e-5)
+
+
+def _drop_calibration(directory, poses):
+    return write_calibrations(directory, {k: v for k, v in WEARERS.items() if k != "cat"})
+
+
+def _bad_json(directory, poses):
+    paths = write_calibrations(directory)
+    paths[1].write_text('{"wearer": "ben",\n "frame": "camera",\n oops}\n')
+    return paths
+
+
+def _missing_key(directory, poses):
+    paths = write_calibrations(directory)
+    data = json.loads(paths[0].read_text())
+    del data["bandwidth"]
+    paths[0].write_text(json.dumps(data))
+    return paths
+
+
+def _bad_direction(directory, poses):
+    paths = write_calibrations(directory)
+    data = json.loads(paths[2].read_text())
+    data["direction"] = [0.0, 1.0]
+    paths[2].write_text(json.dumps(data))
+    return paths
+
+
+def _non_unit_pose(directory, poses):
+    poses[3][2] = "2.0"  # qw of frame 5, ann
+    return write_calibrations(directory)
+
+
+def _duplicate_wearer(directory, poses):
+    paths = write_calibrations(directory)
+    copy = directory / "cli_calib_ann_again.json"
+    copy.write_text(paths[0].read_text())
+    return paths + [copy]
+
+
+CONCURRENCE_FAILURES = {
+    # name: (make(dir, pose rows) -> calibration paths, expected words, where: 'input' or calibration index, line)
+    "person without calibration": (_drop_calibration, ["no calibration for person 'cat'"], ("input", 4)),
+    "malformed json": (_bad_json, ["calibration is not valid JSON"], (1, 3)),
+    "missing key": (_missing_key, ["calibration is missing key 'bandwidth'"], (0, None)),
+    "bad direction": (_bad_direction, ["calibration 'direction' must be a list of 3 numbers"], (2, 1)),
+    "non-unit quaternion": (_non_unit_pose, ["is not unit"], ("input", 5)),
+    "duplicate wearer": (_duplicate_wearer, ["two calibrations for wearer 'ann'"], (3, None)),
+    "missing calibration": (lambda d, p: write_calibrations(d)[:2] + [d / "nope.json"],
+                            ["calibration file not found"], (2, None)),
+}
+
+
+@pytest.mark.parametrize("name", list(CONCURRENCE_FAILURES))
+def test_concurrences_with_calibration_failure_modes(tmp_path, capsys, name):
+    make, words, (where, line) = CONCURRENCE_FAILURES[name]
+    poses, _ = calibrated_scene_rows()
+    calibrations = make(tmp_path, poses)
+    src = write_rows(tmp_path / "poses.csv", CAMERA_POSE_COLUMNS, poses)
+    out = tmp_path / "out.csv"
+    before = sorted(os.listdir(tmp_path))
+    status, stdout, stderr = run_main(capsys, ["concurrences", src, "--calibration", *calibrations, "--out", out])
+    assert_failed(status, stdout, stderr, *words)
+    path = src if where == "input" else calibrations[where]
+    assert stderr.rstrip("\n").endswith(f"({path})" if line is None else f"({path}:{line})")
+    assert sorted(os.listdir(tmp_path)) == before
