@@ -22,7 +22,10 @@ the scatter of the points grows linearly with their depth from the apex.
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import logging
+import warnings
 from typing import TYPE_CHECKING, NamedTuple
 
 import jax
@@ -148,8 +151,9 @@ def calibrate_cone_posterior(
     import arviz as az
 
     samples = {k: np.asarray(v) for k, v in mcmc.get_samples().items()}
-    idata = az.from_numpyro(mcmc)
-    summary = az.summary(idata, var_names=["eye_center", "direction", "bandwidth", "outlier_share"])
+    with _single_chain_quiet(num_chains):
+        idata = az.from_numpyro(mcmc)
+        summary = az.summary(idata, var_names=["eye_center", "direction", "bandwidth", "outlier_share"])
     direction_mean = samples["direction"].mean(0)
     return CalibrationPosterior(
         idata=idata,
@@ -160,6 +164,28 @@ def calibrate_cone_posterior(
         samples=samples,
         predictive_check=_predictive_check(check_key, y, samples),
     )
+
+
+@contextlib.contextmanager
+def _single_chain_quiet(num_chains: int):
+    """With one chain arviz logs that r-hat cannot be computed (it is NaN in the summary); silence that."""
+    if num_chains > 1:
+        yield
+        return
+    import arviz
+
+    # arviz logs through its own ``Logger("arviz")`` instance, not ``logging.getLogger``.
+    loggers = [log for log in (getattr(arviz, "_log", None), logging.getLogger("arviz")) if log is not None]
+    levels = [log.level for log in loggers]
+    for log in loggers:
+        log.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            yield
+    finally:
+        for log, level in zip(loggers, levels):
+            log.setLevel(level)
 
 
 @functools.lru_cache(maxsize=8)
