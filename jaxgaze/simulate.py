@@ -230,10 +230,16 @@ class _Pool:
         shape = tuple(shape)
         n = math.prod(shape)
         if self._next + n > self._u.shape[0]:
-            raise RuntimeError("simulate: random pool exhausted (internal error; enlarge _pool_size)")
+            raise RuntimeError("simulate: random pool exhausted (internal error; enlarge the pool)")
         out = self._u[self._next : self._next + n].reshape(shape)
         self._next += n
         return minval + (maxval - minval) * out
+
+    def seek(self, position: int):
+        """Continue from ``position`` (≥ the numbers used so far): fixed offsets per block."""
+        if position < self._next:
+            raise RuntimeError("simulate: random pool block overflow (internal error)")
+        self._next = position
 
     def randint(self, shape, low: int, high: int):
         """Integers uniform in ``[low, high)``."""

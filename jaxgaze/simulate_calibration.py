@@ -54,6 +54,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxgaze.geometry import axis_angle_to_rotation_matrix, orthonormal_basis, unit, yaw_pitch_to_direction
+from jaxgaze.simulate import _Pool
 
 __all__ = [
     "Mounting",
@@ -161,29 +162,6 @@ class CalibrationSession(NamedTuple):
 
 # ---------------------------------------------------------------------------
 # Building blocks
-
-
-class _Pool:
-    """Uniforms drawn in one ``jax.random`` call and handed out in order (few threefry kernels)."""
-
-    def __init__(self, key, size: int):
-        self._u = jax.random.uniform(key, (size,))
-        self._next = 0
-
-    def uniform(self, shape=(), minval=0.0, maxval=1.0):
-        shape = tuple(shape)
-        n = math.prod(shape)
-        if self._next + n > self._u.shape[0]:
-            raise RuntimeError("simulate_calibration: random pool exhausted (internal error)")
-        out = self._u[self._next : self._next + n].reshape(shape)
-        self._next += n
-        return minval + (maxval - minval) * out
-
-    def seek(self, position: int):
-        """Continue from ``position`` (≥ the numbers used so far): fixed offsets per block."""
-        if position < self._next:
-            raise RuntimeError("simulate_calibration: random pool block overflow (internal error)")
-        self._next = position
 
 
 def _mounting_from_pool(pool: _Pool, shape=()) -> Mounting:
