@@ -228,6 +228,30 @@ def _parse_frame(cell: str, path: str, line: int) -> int:
     return int(value)
 
 
+def _read_header(reader, path: str, columns) -> tuple[list, list, dict, int]:
+    """First non-blank row as the header: ``(header, lower-case names, {column: index}, its line)``; checks
+    that it has every required column once."""
+    header = None
+    for row in reader:
+        if any(cell.strip() for cell in row):
+            header = row
+            break
+    if header is None:
+        raise CLIError("input is empty: expected a header row with columns " + ", ".join(columns),
+                       path, max(reader.line_num, 1))
+    header_line = reader.line_num
+    names = [cell.strip().lower() for cell in header]
+    duplicated = sorted({n for n in names if names.count(n) > 1 and n})
+    if duplicated:
+        raise CLIError(f"duplicate column '{duplicated[0]}' in the header", path, header_line)
+    missing = [c for c in columns if c not in names]
+    if missing:
+        raise CLIError(
+            "missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
+            + " in the header (need " + ", ".join(columns) + ")", path, header_line)
+    return header, names, {name: names.index(name) for name in columns}, header_line
+
+
 def _read_rows(path: str, default_bandwidth: float):
     """Parse and check the CSV; returns ``{frame: [(person, origin, direction, bandwidth, line), ...]}``."""
     try:
@@ -249,25 +273,7 @@ def _read_rows(path: str, default_bandwidth: float):
     seen: dict[tuple[int, str], int] = {}
     reader = csv.reader(io.StringIO(text, newline=""), strict=True)
     try:
-        header = None
-        for row in reader:
-            if any(cell.strip() for cell in row):
-                header = row
-                break
-        if header is None:
-            raise CLIError("input is empty: expected a header row with columns " + ", ".join(CSV_COLUMNS),
-                           path, max(reader.line_num, 1))
-        header_line = reader.line_num
-        names = [cell.strip().lower() for cell in header]
-        duplicated = sorted({n for n in names if names.count(n) > 1 and n})
-        if duplicated:
-            raise CLIError(f"duplicate column '{duplicated[0]}' in the header", path, header_line)
-        missing = [c for c in CSV_COLUMNS if c not in names]
-        if missing:
-            raise CLIError(
-                "missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
-                + " in the header (need " + ", ".join(CSV_COLUMNS) + ")", path, header_line)
-        index = {name: names.index(name) for name in CSV_COLUMNS}
+        header, names, index, header_line = _read_header(reader, path, CSV_COLUMNS)
         bw_index = names.index("bandwidth") if "bandwidth" in names else None
 
         for row in reader:
@@ -440,25 +446,7 @@ def read_camera_poses_csv(path: str) -> dict:
     reader = csv.reader(io.StringIO(text, newline=""), strict=True)
     rows = []
     try:
-        header = None
-        for row in reader:
-            if any(cell.strip() for cell in row):
-                header = row
-                break
-        if header is None:
-            raise CLIError("input is empty: expected a header row with columns " + ", ".join(CAMERA_POSE_COLUMNS),
-                           path, max(reader.line_num, 1))
-        header_line = reader.line_num
-        names = [cell.strip().lower() for cell in header]
-        duplicated = sorted({n for n in names if names.count(n) > 1 and n})
-        if duplicated:
-            raise CLIError(f"duplicate column '{duplicated[0]}' in the header", path, header_line)
-        missing = [c for c in CAMERA_POSE_COLUMNS if c not in names]
-        if missing:
-            raise CLIError(
-                "missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
-                + " in the header (need " + ", ".join(CAMERA_POSE_COLUMNS) + ")", path, header_line)
-        index = {name: names.index(name) for name in CAMERA_POSE_COLUMNS}
+        header, names, index, header_line = _read_header(reader, path, CAMERA_POSE_COLUMNS)
         seen: dict[tuple[int, str], int] = {}
         for row in reader:
             line = reader.line_num
