@@ -584,37 +584,12 @@ def _atomic_output(path: str, mode: str = "w", what: str = "output"):
     """Yield a temporary file next to ``path``; ``os.replace`` it onto ``path`` only on success.
 
     On any failure the temporary file is deleted and an existing ``path`` is
-    left untouched; an ``OSError`` becomes a :class:`CLIError`.
+    left untouched; an ``OSError`` becomes a :class:`CLIError` (see :func:`_atomic_path`).
     """
-    target = os.path.abspath(path)
-    directory = os.path.dirname(target)
-    try:
-        fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(target)}.", suffix=".tmp")
-    except OSError as error:
-        raise CLIError(f"cannot write {what}: {error.strerror or error}", path) from None
-    try:
-        try:
-            file_mode = os.stat(target).st_mode & 0o7777
-        except OSError:
-            umask = os.umask(0)
-            os.umask(umask)
-            file_mode = 0o666 & ~umask
-        os.chmod(tmp, file_mode)
-        if "b" in mode:
-            handle = os.fdopen(fd, mode)
-        else:
-            handle = os.fdopen(fd, mode, newline="", encoding="utf-8")
-        with handle:
+    with _atomic_path(path, what) as tmp:
+        text = {} if "b" in mode else {"newline": "", "encoding": "utf-8"}
+        with open(tmp, mode, **text) as handle:
             yield handle
-        os.replace(tmp, target)
-    except OSError as error:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise CLIError(f"cannot write {what}: {error.strerror or error}", path) from None
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
 
 
 def _fmt(value) -> str:
@@ -685,8 +660,8 @@ def _cmd_concurrences(args) -> int:
 
 @contextlib.contextmanager
 def _atomic_path(path: str, what: str = "output"):
-    """Like :func:`_atomic_output`, for writers that want a file name: yield a temporary path next to
-    ``path`` and ``os.replace`` it onto ``path`` only on success."""
+    """Yield a temporary path next to ``path`` (same permissions) and ``os.replace`` it onto
+    ``path`` only on success; on failure delete it and leave ``path`` untouched."""
     target = os.path.abspath(path)
     try:
         fd, tmp = tempfile.mkstemp(dir=os.path.dirname(target), prefix=f".{os.path.basename(target)}.",

@@ -12,6 +12,7 @@ import sys
 
 import numpy as np
 import pytest
+from cli_helpers import assert_failed, run_main
 
 import jaxgaze.rays
 from jaxgaze.cli import CSV_COLUMNS, OUTPUT_COLUMNS, main
@@ -99,12 +100,6 @@ def check_rows(header, rows):
             variances = [float(got[k][c]) for c in ("var_x", "var_y", "var_z")]
             assert all(0 < v < 1.0 for v in variances)
             assert float(got[k]["field_value"]) > 0
-
-
-def run_main(capsys, argv):
-    status = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return status, out, err
 
 
 @pytest.fixture(scope="module")
@@ -266,17 +261,6 @@ def _make_input(path, spec):
         write_csv(path, [r[: len(spec)] for r in scene_rows()], spec)
     else:
         write_csv(path, _rows_with(spec))
-
-
-def assert_failed(status, stdout, stderr, *words):
-    assert status == 2
-    assert stdout == ""
-    lines = stderr.splitlines()
-    assert len(lines) == 1, stderr
-    assert lines[0].startswith("jaxgaze: error: ")
-    for word in words:
-        assert word in lines[0], (word, lines[0])
-    assert "Traceback" not in stderr
 
 
 @pytest.mark.parametrize("existing", [False, True], ids=["no-out", "existing-out"])

@@ -15,6 +15,7 @@ import os
 import jax
 import numpy as np
 import pytest
+from cli_helpers import assert_failed, run_main
 
 from jaxgaze.cli import CAMERA_POSE_COLUMNS, CSV_COLUMNS, OUTPUT_COLUMNS, main
 from jaxgaze.geometry import rotation_matrix_to_quaternion
@@ -23,23 +24,6 @@ from jaxgaze.simulate_calibration import simulate_calibration_session
 
 DATA = os.path.join(os.path.dirname(__file__), "data")
 POSE_HEADER = "frame,qw,qx,qy,qz,cx,cy,cz\n"
-
-
-def run_main(capsys, argv):
-    status = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return status, out, err
-
-
-def assert_failed(status, stdout, stderr, *words):
-    assert status == 2
-    assert stdout == ""
-    lines = stderr.splitlines()
-    assert len(lines) == 1, stderr
-    assert lines[0].startswith("jaxgaze: error: ")
-    for word in words:
-        assert word in lines[0], (word, lines[0])
-    assert "Traceback" not in stderr
 
 
 def angle_deg(u, v):
