@@ -4,12 +4,25 @@ Frames and units are documented in ``docs/conventions.md``: world/head/camera
 frames, metres, radians inside (degrees only in names ending ``_deg``).
 """
 
-from jaxgaze import geometry, metrics, poses, simulate, simulate_calibration
+from jaxgaze import bias, geometry, metrics, poses, simulate, simulate_calibration, simulate_dyadic
+from jaxgaze.bias import (
+    BiasEstimate,
+    estimate_bias,
+    is_looking_at,
+    looking_probability,
+    read_openface,
+    read_rttm,
+    read_segments_csv,
+    select_frames,
+    speaking_flags,
+    update_bias,
+)
 from jaxgaze.calibration import CalibrationResult, ConeCalibration, calibrate_cone
 from jaxgaze.calibration_posterior import (
     CalibrationPosterior,
     ConcurrenceEnsemble,
     calibrate_cone_posterior,
+    calibrate_cone_posterior_batch,
     propagate_to_concurrences,
 )
 from jaxgaze.concurrence import (
@@ -35,6 +48,19 @@ from jaxgaze.rays import GazeRays
 __version__ = "0.1.0"
 
 __all__ = [
+    "bias",
+    "simulate_dyadic",
+    "BiasEstimate",
+    "estimate_bias",
+    "update_bias",
+    "is_looking_at",
+    "looking_probability",
+    "select_frames",
+    "read_openface",
+    "read_rttm",
+    "read_segments_csv",
+    "speaking_flags",
+    "calibrate_cone_posterior_batch",
     "geometry",
     "metrics",
     "simulate",

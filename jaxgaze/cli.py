@@ -461,7 +461,7 @@ def read_camera_poses_csv(path: str) -> dict:
             q = [_parse_float(row[index[c]], c, path, line) for c in ("qw", "qx", "qy", "qz")]
             centre = [_parse_float(row[index[c]], c, path, line) for c in ("cx", "cy", "cz")]
             try:
-                poses_module._check_quaternion(q, path, line)
+                poses_module.check_quaternion(q, path, line)
             except poses_module.PoseFileError as error:
                 raise CLIError(_pose_error_text(error), path, line) from None
             first = seen.setdefault((frame, person), line)
@@ -475,7 +475,7 @@ def read_camera_poses_csv(path: str) -> dict:
         raise CLIError("no data rows after the header", path, header_line)
     q = np.asarray([r[2] for r in rows], dtype=np.float64)
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    R_world_from_camera = np.swapaxes(poses_module._quat_to_matrix(q), -1, -2)
+    R_world_from_camera = np.swapaxes(poses_module.quaternions_to_matrices(q), -1, -2)
     frames: dict[int, list] = {}
     for (frame, person, _, centre, line), R in zip(rows, R_world_from_camera):
         frames.setdefault(frame, []).append((person, R, np.asarray(centre), line))

@@ -44,6 +44,8 @@ __all__ = [
     "match_frames",
     "points_of_regard",
     "transform_poses",
+    "check_quaternion",
+    "quaternions_to_matrices",
 ]
 
 #: ``v_ours = R_OURS_FROM_OPENCV @ v_opencv``. OpenCV/COLMAP camera axes are
@@ -164,8 +166,12 @@ def _padded_size(n: int) -> int:
     return max(16, 1 << (n - 1).bit_length())
 
 
-def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """``(T, 4)`` (w, x, y, z) → ``(T, 3, 3)`` float64, via :mod:`jaxgaze.geometry`."""
+def quaternions_to_matrices(q: np.ndarray) -> np.ndarray:
+    """``(T, 4)`` unit quaternions (w, x, y, z) → ``(T, 3, 3)`` float64 rotation matrices.
+
+    :func:`jaxgaze.geometry.quaternion_to_rotation_matrix` in float64, compiled once
+    per padded length (powers of two) rather than once per file length.
+    """
     n = q.shape[0]
     padded = np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (_padded_size(n), 1))
     padded[:n] = q
@@ -215,7 +221,8 @@ def _integer(text: str, what: str, path, line: int) -> int:
     return int(value)
 
 
-def _check_quaternion(q, path, line: int) -> None:
+def check_quaternion(q, path, line: int) -> None:
+    """Raise :class:`PoseFileError` at ``path, line`` unless ``|‖q‖ − 1| ≤ QUATERNION_NORM_TOLERANCE``."""
     norm = math.sqrt(sum(x * x for x in q))
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise PoseFileError(
@@ -289,7 +296,7 @@ def read_colmap_images(path) -> CameraPoses:
         t = [_number(fields[5 + k], name, path, number) for k, name in enumerate(("TX", "TY", "TZ"))]
         _integer(fields[8], "CAMERA_ID", path, number)
         name = " ".join(fields[9:])
-        _check_quaternion(q, path, number)
+        check_quaternion(q, path, number)
         # The next line, whatever it holds, is this image's POINTS2D line (as in COLMAP).
         if i < len(lines):
             points = lines[i].split()
@@ -311,7 +318,7 @@ def read_colmap_images(path) -> CameraPoses:
     _check_duplicates(frames, where, path)
     q = np.asarray(quats, dtype=np.float64)
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    R_cv = _quat_to_matrix(q)
+    R_cv = quaternions_to_matrices(q)
     t = np.asarray(ts, dtype=np.float64)
     centers = -np.einsum("tji,tj->ti", R_cv, t)
     R = np.einsum("ij,tjk->tik", R_OURS_FROM_OPENCV, R_cv)
@@ -409,7 +416,7 @@ def read_pose_csv(path) -> CameraPoses:
 
         frames.append(_integer(cell("frame", index["frame"]), "column 'frame'", path, number))
         q = [_number(cell(c, index[c]), f"column '{c}'", path, number) for c in ("qw", "qx", "qy", "qz")]
-        _check_quaternion(q, path, number)
+        check_quaternion(q, path, number)
         quats.append(q)
         centers.append([_number(cell(c, index[c]), f"column '{c}'", path, number) for c in ("cx", "cy", "cz")])
         if ts_index is not None:
@@ -418,7 +425,7 @@ def read_pose_csv(path) -> CameraPoses:
     _check_duplicates(frames, where, path)
     q = np.asarray(quats, dtype=np.float64)
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    return _make_poses(_quat_to_matrix(q), centers, frames, stamps if ts_index is not None else None)
+    return _make_poses(quaternions_to_matrices(q), centers, frames, stamps if ts_index is not None else None)
 
 
 def write_pose_csv(path, poses: CameraPoses) -> None:

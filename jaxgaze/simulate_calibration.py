@@ -14,7 +14,7 @@ Generative model, for one pair (A, B) and frames ``t = 0 … T−1``:
    and 1–4 cm behind it, ±2 cm sideways) and the primary gaze direction ``v``
    (yaw and pitch each within ±5° of +x). See :func:`random_mounting`.
 2. **Motion** (world frame, z up, metres): the pair stands along a random
-   horizontal axis, 1.5–4 m apart. Each wearer's camera centre oscillates
+   horizontal axis, about 1–4 m apart. Each wearer's camera centre oscillates
    along the pair axis (back and forth) and across it (side to side) with
    sinusoids of at least 3.2 cycles each over the session (periods 5–10 s when
    the session is long enough), camera height 1.6–1.8 m with a 1 cm walking bob.
@@ -72,8 +72,14 @@ OUTLIER_ANGLE_RANGE = (math.radians(10.0), math.radians(30.0))
 # Motion.
 MIN_CYCLES = 3.2  # "at least three times" (Sec. 4), with a margin
 PERIOD_RANGE = (5.0, 10.0)  # seconds per back-and-forth / side-to-side cycle
-SEPARATION_RANGE = (2.5, 2.75)  # mean distance between the pair (m)
-AXIAL_AMPLITUDE_RANGE = (0.25, 0.5)  # each wearer, along the pair axis (m)
+# The depth range sets how well the eye centre is found: the ray is pinned at the
+# points, metres out, so its offset at the eyes is about depth × direction error.
+# Measured with RANSAC + cone on 200 wearers × 3 seeds (300 frames, h = 0.03):
+# pairs 1.6–3.7 m apart gave a median eye-centre error ⊥ axis of 3.4–4.0 cm and a
+# direction error of 0.8–1.0°; pairs 1.0–4.1 m apart (the values below) 1.9–2.3 cm
+# and 0.5–0.6°. Walking back and forth from ~1 m to ~4 m is the protocol to ask for.
+SEPARATION_RANGE = (2.25, 2.75)  # mean distance between the pair (m)
+AXIAL_AMPLITUDE_RANGE = (0.4, 0.7)  # each wearer, along the pair axis (m)
 LATERAL_AMPLITUDE_RANGE = (0.2, 0.5)  # each wearer, across the pair axis (m)
 HEIGHT_RANGE = (1.6, 1.8)  # camera height (m)
 BOB_AMPLITUDE = 0.01  # walking bob (m)

@@ -1,0 +1,564 @@
+"""Input readers for the speaker-prior gaze bias (Siegfried, Yu & Odobez, ICMI 2017,
+"Towards the use of social interaction conventions as prior for gaze model
+adaptation"; ``METHODS.md`` §3): head pose and gaze from OpenFace 2, and who
+speaks when (RTTM or a CSV of segments).
+
+Conventions (see ``docs/conventions.md``, "OpenFace and speaking status"):
+
+* Our camera and head frames are +x forward, +y left, +z up, metres, radians.
+  OpenFace works in OpenCV camera coordinates (x right, y down, z forward) and
+  millimetres; :func:`read_openface` converts everything.
+* OpenFace's ``pose_R*`` is ``R = Rx(pose_Rx) · Ry(pose_Ry) · Rz(pose_Rz)``, the
+  rotation from OpenFace's head model to the OpenCV camera
+  (``RotationHelpers.h: Euler2RotationMatrix``; ``GetPose`` runs ``solvePnP`` on
+  the model's 3D landmarks). The model's axes are those of the camera when the
+  face is upright and frontal: x = the person's left, y = down, z = backwards
+  into the head. Hence, in the method's head frame, forward = −z_model,
+  left = +x_model, up = −y_model (:data:`R_OPENFACE_MODEL_FROM_HEAD`).
+* ``gaze_angle_x = atan2(g_x, −g_z)`` and ``gaze_angle_y = atan2(g_y, −g_z)``,
+  where ``g`` is the mean of the two eyes' gaze vectors in OpenCV camera
+  coordinates (``GazeEstimation.cpp: GetGazeAngle``). So ``g ∝ (tan x, tan y, −1)``.
+
+Everything here is host-side NumPy in float64 (file reading, not jitted). File
+errors raise :class:`OpenFaceFileError` or :class:`SpeechFileError` (both
+``ValueError``) whose message starts with ``path, line N:``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import operator
+import os
+import warnings
+from typing import NamedTuple, Optional, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxgaze.geometry import direction_to_yaw_pitch, unit
+from jaxgaze.poses import R_OURS_FROM_OPENCV
+
+__all__ = [
+    "OPENFACE_COLUMNS",
+    "R_OPENFACE_MODEL_FROM_HEAD",
+    "OpenFaceFileError",
+    "OpenFaceTrack",
+    "read_openface",
+    "SpeechFileError",
+    "SpeechSegments",
+    "read_rttm",
+    "read_segments_csv",
+    "speaking_flags",
+]
+
+#: Columns :func:`read_openface` needs (``face_id`` is used when present).
+OPENFACE_COLUMNS = (
+    "frame",
+    "timestamp",
+    "confidence",
+    "success",
+    "gaze_angle_x",
+    "gaze_angle_y",
+    "pose_Tx",
+    "pose_Ty",
+    "pose_Tz",
+    "pose_Rx",
+    "pose_Ry",
+    "pose_Rz",
+)
+_BOOKKEEPING = ("frame", "face_id", "timestamp", "confidence", "success")
+_GAZE_POSE = OPENFACE_COLUMNS[4:]
+
+#: ``v_model = R_OPENFACE_MODEL_FROM_HEAD @ v_head``: our head axes (forward,
+#: left, up) written in OpenFace's head-model axes (x = the person's left,
+#: y = down, z = into the head): forward = −z, left = +x, up = −y. det = +1.
+R_OPENFACE_MODEL_FROM_HEAD = np.array(
+    [
+        [0.0, 1.0, 0.0],
+        [0.0, 0.0, -1.0],
+        [-1.0, 0.0, 0.0],
+    ]
+)
+R_OPENFACE_MODEL_FROM_HEAD.setflags(write=False)
+
+# Times are compared after rounding to 1 ns, so that decimal boundaries add up
+# exactly (1.1 + 0.3 is 1.4000000000000001 in floating point).
+_TIME_DECIMALS = 9
+
+
+class _FileError(ValueError):
+    def __init__(self, message: str, path, line: Optional[int] = None):
+        self.path = os.fspath(path)
+        self.line = line
+        where = self.path if line is None else f"{self.path}, line {line}"
+        super().__init__(f"{where}: {message}")
+
+
+class OpenFaceFileError(_FileError):
+    """An OpenFace CSV is malformed. The message starts with ``path, line N:``."""
+
+
+class SpeechFileError(_FileError):
+    """An RTTM or segment CSV is malformed. The message starts with ``path, line N:``."""
+
+
+def _read_lines(path, error) -> list[str]:
+    try:
+        with open(path, "rb") as handle:
+            data = handle.read()
+    except FileNotFoundError:
+        raise error("file not found", path) from None
+    except IsADirectoryError:
+        raise error("is a directory, not a file", path) from None
+    try:
+        return data.decode("utf-8-sig").splitlines()
+    except UnicodeDecodeError as exc:
+        raise error(f"not UTF-8 text: {exc.reason}", path, data[: exc.start].count(b"\n") + 1) from None
+
+
+def _number(text: str, what: str, path, line: int, error) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise error(f"{what} is not a number: {text!r}", path, line) from None
+    if not math.isfinite(value):
+        raise error(f"{what} is not finite: {text!r}", path, line)
+    return value
+
+
+# ---------------------------------------------------------------------------
+# OpenFace
+
+
+class OpenFaceTrack(NamedTuple):
+    """One face tracked by OpenFace over ``T`` kept frames, in **our** frames.
+
+    * ``frame`` ``(T,)`` int64 and ``timestamp`` ``(T,)`` float64 seconds, sorted by frame.
+    * ``confidence`` ``(T,)``: OpenFace's landmark-detection confidence.
+    * ``gaze_direction_camera`` ``(T, 3)``: unit gaze (mean of both eyes), our camera frame.
+    * ``R_camera_from_head`` ``(T, 3, 3)``: ``v_camera = R_camera_from_head @ v_head``.
+    * ``head_position_camera`` ``(T, 3)``: origin of OpenFace's head model (``pose_T``,
+      near the middle of the face, not exactly the eye centre), metres, our camera frame.
+    * ``dropped``: frames removed, per reason, e.g. ``{"success == 0": 3, "confidence < 0.75": 2}``.
+    """
+
+    frame: np.ndarray
+    timestamp: np.ndarray
+    confidence: np.ndarray
+    gaze_direction_camera: np.ndarray
+    R_camera_from_head: np.ndarray
+    head_position_camera: np.ndarray
+    dropped: dict
+
+    @property
+    def head_direction_camera(self) -> np.ndarray:
+        """``(T, 3)``: the head's forward axis (+x_head) in our camera frame."""
+        return np.asarray(self.R_camera_from_head)[:, :, 0]
+
+    @property
+    def gaze_angles_head(self) -> np.ndarray:
+        """``(T, 2)`` (yaw, tilt) in radians of the gaze in the head frame (the
+        paper's ``g = (φ, θ)``): ``direction_to_yaw_pitch(R_camera_from_headᵀ @ gaze)``.
+        Yaw is positive to the person's left, tilt positive up."""
+        d = np.einsum("tji,tj->ti", self.R_camera_from_head, self.gaze_direction_camera)
+        with jax.enable_x64(True):
+            yaw, tilt = direction_to_yaw_pitch(jnp.asarray(d))
+            return np.stack([np.asarray(yaw), np.asarray(tilt)], axis=-1)
+
+
+def _openface_euler_to_matrix(rx: np.ndarray, ry: np.ndarray, rz: np.ndarray) -> np.ndarray:
+    """OpenFace's ``Euler2RotationMatrix``: ``Rx(rx) · Ry(ry) · Rz(rz)`` (right-handed,
+    active), ``(T,) → (T, 3, 3)``: head model → OpenCV camera."""
+    c1, s1, c2, s2, c3, s3 = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+    return np.stack(
+        [
+            np.stack([c2 * c3, -c2 * s3, s2], axis=-1),
+            np.stack([c1 * s3 + c3 * s1 * s2, c1 * c3 - s1 * s2 * s3, -c2 * s1], axis=-1),
+            np.stack([s1 * s3 - c1 * c3 * s2, c3 * s1 + c1 * s2 * s3, c1 * c2], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def read_openface(path, *, min_confidence: float = 0.75, face_id: Optional[int] = None) -> OpenFaceTrack:
+    """Read an OpenFace 2 ``FeatureExtraction`` (or ``FaceLandmarkVidMulti``) CSV.
+
+    Uses the columns :data:`OPENFACE_COLUMNS` and ``face_id`` if present (names are
+    stripped: older files write ``" confidence"``); others are ignored. Frames with
+    ``success == 0``, else with ``confidence < min_confidence``, are dropped; the
+    counts go to ``OpenFaceTrack.dropped`` and one warning states them. If the file
+    has several faces, pass ``face_id`` (an error lists the ids present).
+
+    Conversions (OpenFace: OpenCV camera axes, millimetres; see the module notes):
+
+    * gaze: ``g_cv = unit(tan gaze_angle_x, tan gaze_angle_y, −1)`` (inverse of
+      ``GetGazeAngle``; both angles must lie in (−π/2, π/2), i.e. the gaze points
+      toward the camera's side, as it does for any eye the camera sees), then
+      ``gaze_direction_camera = R_OURS_FROM_OPENCV @ g_cv``;
+    * pose: ``R_camera_from_head = R_OURS_FROM_OPENCV @ Rx·Ry·Rz @ R_OPENFACE_MODEL_FROM_HEAD``,
+      so pose_R = 0 faces the camera (forward = −x_camera); ``pose_Rx > 0`` pitches
+      the head down, ``pose_Ry > 0`` turns it to the person's right, ``pose_Rz > 0``
+      rolls its top toward the person's left;
+    * position: ``head_position_camera = R_OURS_FROM_OPENCV @ pose_T / 1000``.
+
+    Raises :class:`OpenFaceFileError` (a ``ValueError``, ``path, line N:``) for an
+    empty file, a missing column, no data rows, a row with the wrong number of
+    fields, a non-numeric cell in a used column, NaN/inf in frame, face_id,
+    timestamp, confidence or success (any row) or in a gaze/pose column of a kept
+    frame, a non-integer frame or face_id, success not 0/1, a gaze angle outside
+    (−π/2, π/2), a duplicate frame of the chosen face, several faces without
+    ``face_id``, an absent ``face_id``, or every frame dropped.
+    """
+    min_confidence = float(min_confidence)
+    if not math.isfinite(min_confidence):
+        raise ValueError(f"read_openface: min_confidence must be finite, got {min_confidence}")
+    lines = _read_lines(path, OpenFaceFileError)
+    content = [(n + 1, ln) for n, ln in enumerate(lines) if ln.strip()]
+    if not content:
+        raise OpenFaceFileError("empty file: expected an OpenFace CSV header (frame, face_id, timestamp, ...)", path, 1)
+    header_line, header = content[0]
+    names = [cell.strip() for cell in header.split(",")]
+    for column in OPENFACE_COLUMNS + ("face_id",):
+        if names.count(column) > 1:
+            raise OpenFaceFileError(f"duplicate column '{column}' in the header", path, header_line)
+    missing = [c for c in OPENFACE_COLUMNS if c not in names]
+    if missing:
+        raise OpenFaceFileError(
+            "missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
+            + " in the header (is this an OpenFace 2 FeatureExtraction CSV?)",
+            path,
+            header_line,
+        )
+    columns = [c for c in _BOOKKEEPING if c in names] + list(_GAZE_POSE)
+    index = [names.index(c) for c in columns]
+    if len(content) == 1:
+        raise OpenFaceFileError("no data rows after the header", path, header_line)
+
+    where = np.array([n for n, _ in content[1:]], dtype=np.int64)
+    values = np.empty((len(where), len(columns)), dtype=np.float64)
+    for i, (number, text) in enumerate(content[1:]):
+        cells = text.split(",")
+        if len(cells) != len(names):
+            raise OpenFaceFileError(
+                f"expected {len(names)} fields as in the header, got {len(cells)}", path, number
+            )
+        for j, k in enumerate(index):
+            cell = cells[k].strip()
+            try:
+                values[i, j] = float(cell)
+            except ValueError:
+                raise OpenFaceFileError(f"column '{columns[j]}' is not a number: {cell!r}", path, number) from None
+    col = {c: values[:, j] for j, c in enumerate(columns)}
+
+    def fail_at(mask, message):
+        bad = np.nonzero(mask)[0]
+        if bad.size:
+            raise OpenFaceFileError(message(bad[0]), path, int(where[bad[0]]))
+
+    for c in _BOOKKEEPING:
+        if c in col:
+            fail_at(~np.isfinite(col[c]), lambda i, c=c: f"column '{c}' is not finite: {float(col[c][i])!r}")
+    for c in ("frame", "face_id"):
+        if c in col:
+            fail_at(
+                col[c] != np.round(col[c]), lambda i, c=c: f"column '{c}' must be an integer, got {float(col[c][i])!r}"
+            )
+    fail_at(
+        (col["success"] != 0) & (col["success"] != 1),
+        lambda i: f"success must be 0 or 1, got {float(col['success'][i])!r}",
+    )
+
+    faces = col["face_id"].astype(np.int64) if "face_id" in col else np.zeros(len(where), dtype=np.int64)
+    present = sorted(set(faces.tolist()))
+    if face_id is None:
+        if len(present) > 1:
+            raise OpenFaceFileError(
+                f"several faces (face_id {', '.join(map(str, present))}); pass face_id= to choose one", path
+            )
+        face_id = present[0]
+    elif int(face_id) not in present:
+        raise OpenFaceFileError(
+            f"no rows with face_id {face_id} (face_id present: {', '.join(map(str, present))})", path
+        )
+    mine = faces == int(face_id)
+    where, values = where[mine], values[mine]
+    col = {c: values[:, j] for j, c in enumerate(columns)}
+    frames = col["frame"].astype(np.int64)
+
+    first: dict[int, int] = {}
+    for frame, line in zip(frames.tolist(), where.tolist()):
+        seen = first.setdefault(frame, line)
+        if seen != line:
+            raise OpenFaceFileError(f"duplicate frame {frame} of face_id {face_id} (first on line {seen})", path, line)
+
+    failed = col["success"] == 0
+    unsure = ~failed & (col["confidence"] < min_confidence)
+    dropped = {"success == 0": int(failed.sum()), f"confidence < {min_confidence:g}": int(unsure.sum())}
+    keep = ~(failed | unsure)
+    total = int(mine.sum())
+    summary = ", ".join(f"{reason}: {count}" for reason, count in dropped.items())
+    if not keep.any():
+        raise OpenFaceFileError(f"no frames left: all {total} frames of face_id {face_id} dropped ({summary})", path)
+    if not keep.all():
+        warnings.warn(
+            f"{os.fspath(path)}: dropped {total - int(keep.sum())} of {total} frames of face_id {face_id} ({summary})",
+            stacklevel=2,
+        )
+    where, values, frames = where[keep], values[keep], frames[keep]
+    col = {c: values[:, j] for j, c in enumerate(columns)}
+    for c in _GAZE_POSE:
+        fail_at(
+            ~np.isfinite(col[c]), lambda i, c=c: f"column '{c}' is not finite in a kept frame: {float(col[c][i])!r}"
+        )
+    for c in ("gaze_angle_x", "gaze_angle_y"):
+        fail_at(
+            np.abs(col[c]) >= np.pi / 2,
+            lambda i, c=c: f"column '{c}' = {float(col[c][i])!r} is outside (−π/2, π/2): "
+            "not atan2(g, −g_z) of a gaze toward the camera",
+        )
+
+    order = np.argsort(frames, kind="stable")
+    ax, ay = col["gaze_angle_x"][order], col["gaze_angle_y"][order]
+    # (tan x, tan y, −1) scaled by cos x cos y > 0: no division, same direction.
+    g_cv = np.stack([np.sin(ax) * np.cos(ay), np.cos(ax) * np.sin(ay), -np.cos(ax) * np.cos(ay)], axis=-1)
+    with jax.enable_x64(True):
+        g_cv = np.asarray(unit(jnp.asarray(g_cv)), dtype=np.float64)
+    R_cv = _openface_euler_to_matrix(col["pose_Rx"][order], col["pose_Ry"][order], col["pose_Rz"][order])
+    T_cv = np.stack([col["pose_Tx"], col["pose_Ty"], col["pose_Tz"]], axis=-1)[order] / 1000.0
+    return OpenFaceTrack(
+        frame=frames[order],
+        timestamp=col["timestamp"][order],
+        confidence=col["confidence"][order],
+        gaze_direction_camera=g_cv @ R_OURS_FROM_OPENCV.T,
+        R_camera_from_head=R_OURS_FROM_OPENCV @ R_cv @ R_OPENFACE_MODEL_FROM_HEAD,
+        head_position_camera=T_cv @ R_OURS_FROM_OPENCV.T,
+        dropped=dropped,
+    )
+
+
+# ---------------------------------------------------------------------------
+# Speaking status
+
+
+class SpeechSegments(NamedTuple):
+    """Speech segments ``[start, end)`` in seconds: ``start`` and ``end`` ``(K,)``
+    float64 and ``speaker`` (a tuple of ``K`` names). The readers merge
+    overlapping segments of one speaker and sort by ``(start, end, speaker)``."""
+
+    start: np.ndarray
+    end: np.ndarray
+    speaker: tuple
+
+    @property
+    def speakers(self) -> tuple:
+        """The speaker names, sorted and unique."""
+        return tuple(sorted(set(self.speaker)))
+
+
+def _segments(path, starts, ends, speakers, lines) -> SpeechSegments:
+    """Merge overlapping segments of the same speaker (one warning), then sort."""
+    merged, notes = [], []
+    for name in sorted(set(speakers)):
+        mine = sorted((s, e, n) for s, e, sp, n in zip(starts, ends, speakers, lines) if sp == name)
+        current = list(mine[0])
+        for s, e, n in mine[1:]:
+            if s < current[1]:
+                notes.append(f"'{name}' line {n} overlaps line {current[2]}")
+                current[1] = max(current[1], e)
+            else:
+                merged.append((current[0], current[1], name))
+                current = [s, e, n]
+        merged.append((current[0], current[1], name))
+    if notes:
+        warnings.warn(
+            f"{os.fspath(path)}: merged {len(notes)} overlapping segment(s) of the same speaker: "
+            + "; ".join(notes),
+            stacklevel=3,
+        )
+    merged.sort()
+    return SpeechSegments(
+        np.array([m[0] for m in merged], dtype=np.float64),
+        np.array([m[1] for m in merged], dtype=np.float64),
+        tuple(m[2] for m in merged),
+    )
+
+
+def read_rttm(path, *, file_id: Optional[str] = None) -> SpeechSegments:
+    """Read speech segments from an RTTM file (NIST Rich Transcription Time Marked).
+
+    Each ``SPEAKER <file> <channel> <onset> <duration> <NA> <NA> <speaker> <NA> <NA>``
+    line (whitespace-separated, seconds) gives the segment
+    ``[onset, onset + duration)`` (rounded to 1 ns). Other line types
+    (``SPKR-INFO``, ``LEXEME``, ...) and ``;;`` comments are ignored. Segments of
+    every file id are kept unless ``file_id`` selects one. Overlapping segments of
+    one speaker are merged, with a warning.
+
+    Raises :class:`SpeechFileError` (``path, line N:``) for an empty file, a
+    SPEAKER line with fewer than 8 fields, a non-numeric or non-finite onset or
+    duration, a negative duration, no SPEAKER lines, or no lines for ``file_id``.
+    """
+    lines = _read_lines(path, SpeechFileError)
+    if not any(ln.strip() for ln in lines):
+        raise SpeechFileError(
+            "empty file: expected RTTM lines "
+            "'SPEAKER <file> <channel> <onset> <duration> <NA> <NA> <speaker> <NA> <NA>'",
+            path,
+            1,
+        )
+    starts, ends, names, where, files = [], [], [], [], []
+    for number, raw in enumerate(lines, start=1):
+        fields = raw.split()
+        if not fields or fields[0].startswith(";;") or fields[0] != "SPEAKER":
+            continue
+        if len(fields) < 8:
+            raise SpeechFileError(
+                "SPEAKER line needs at least 8 fields "
+                f"'SPEAKER <file> <channel> <onset> <duration> <NA> <NA> <speaker>', got {len(fields)}",
+                path,
+                number,
+            )
+        files.append(fields[1])
+        if file_id is not None and fields[1] != file_id:
+            continue
+        onset = _number(fields[3], "onset", path, number, SpeechFileError)
+        duration = _number(fields[4], "duration", path, number, SpeechFileError)
+        if duration < 0:
+            raise SpeechFileError(f"negative duration {fields[4]}", path, number)
+        starts.append(onset)
+        ends.append(round(onset + duration, _TIME_DECIMALS))
+        names.append(fields[7])
+        where.append(number)
+    if not files:
+        raise SpeechFileError("no SPEAKER lines", path)
+    if not starts:
+        raise SpeechFileError(
+            f"no SPEAKER lines for file '{file_id}' (files present: {', '.join(sorted(set(files)))})", path
+        )
+    return _segments(path, starts, ends, names, where)
+
+
+def read_segments_csv(path) -> SpeechSegments:
+    """Read speech segments from a CSV file with a header row.
+
+    Columns ``start, end, speaker`` (any order, case-insensitive; other columns
+    ignored; blank lines and lines starting with ``#`` skipped): the segment
+    ``[start, end)`` in seconds of ``speaker``. Overlapping segments of one speaker
+    are merged, with a warning.
+
+    Raises :class:`SpeechFileError` (``path, line N:``) for an empty file, a
+    missing column, no data rows, a row with the wrong number of fields, a
+    non-numeric or non-finite time, ``end < start`` or an empty speaker name.
+    """
+    required = ("start", "end", "speaker")
+    lines = _read_lines(path, SpeechFileError)
+    content = [(n + 1, ln) for n, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")]
+    if not content:
+        raise SpeechFileError("empty file: expected a header row with columns start, end, speaker", path, 1)
+    rows = []
+    for number, text in content:
+        try:
+            rows.append((number, next(csv.reader([text], strict=True))))
+        except csv.Error as exc:
+            raise SpeechFileError(f"malformed CSV: {exc}", path, number) from None
+    header_line, header = rows[0]
+    names = [cell.strip().lower() for cell in header]
+    for column in required:
+        if names.count(column) > 1:
+            raise SpeechFileError(f"duplicate column '{column}' in the header", path, header_line)
+    missing = [c for c in required if c not in names]
+    if missing:
+        raise SpeechFileError(
+            "missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
+            + " in the header (need start, end, speaker)",
+            path,
+            header_line,
+        )
+    if len(rows) == 1:
+        raise SpeechFileError("no data rows after the header", path, header_line)
+    i_start, i_end, i_speaker = (names.index(c) for c in required)
+    starts, ends, speakers, where = [], [], [], []
+    for number, row in rows[1:]:
+        if len(row) != len(header):
+            raise SpeechFileError(f"expected {len(header)} fields as in the header, got {len(row)}", path, number)
+        start = _number(row[i_start].strip(), "column 'start'", path, number, SpeechFileError)
+        end = _number(row[i_end].strip(), "column 'end'", path, number, SpeechFileError)
+        speaker = row[i_speaker].strip()
+        if end < start:
+            raise SpeechFileError(f"end {row[i_end].strip()} is before start {row[i_start].strip()}", path, number)
+        if not speaker:
+            raise SpeechFileError("empty speaker name", path, number)
+        starts.append(start)
+        ends.append(end)
+        speakers.append(speaker)
+        where.append(number)
+    return _segments(path, starts, ends, speakers, where)
+
+
+def speaking_flags(
+    segments: SpeechSegments, speakers: Sequence[str], num_frames: int, fps: float, start_time: float = 0.0
+) -> np.ndarray:
+    """``(len(speakers), num_frames)`` bool: whether each speaker speaks at each frame.
+
+    Frame ``t`` is at time ``start_time + t / fps`` seconds (rounded to 1 ns) and
+    is speaking for a speaker if that time lies in one of the speaker's segments
+    ``[start, end)``. Segments of speakers not in ``speakers`` are ignored. Warns
+    (i) naming requested speakers that have no segment at all ("unknown speaker";
+    their rows are all False), and (ii) with the number of frames where two or
+    more of ``speakers`` speak at once (overlapping speech: all of them are True).
+
+    Raises ``ValueError`` for a negative ``num_frames``, ``fps ≤ 0`` or non-finite,
+    a non-finite ``start_time``, duplicate ``speakers``, or segments whose arrays
+    disagree in length, are not finite or have ``end < start``; ``TypeError`` if
+    ``speakers`` is a single string.
+    """
+    if isinstance(speakers, str):
+        raise TypeError(f"speaking_flags: speakers must be a sequence of names, not the string {speakers!r}")
+    speakers = [str(s) for s in speakers]
+    if len(set(speakers)) != len(speakers):
+        raise ValueError(f"speaking_flags: duplicate names in speakers {speakers}")
+    num_frames = operator.index(num_frames)
+    fps, start_time = float(fps), float(start_time)
+    if num_frames < 0:
+        raise ValueError(f"speaking_flags: num_frames must be ≥ 0, got {num_frames}")
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"speaking_flags: fps must be finite and > 0, got {fps}")
+    if not math.isfinite(start_time):
+        raise ValueError(f"speaking_flags: start_time must be finite, got {start_time}")
+    start = np.asarray(segments.start, dtype=np.float64).reshape(-1)
+    end = np.asarray(segments.end, dtype=np.float64).reshape(-1)
+    names = tuple(segments.speaker)
+    if not (start.shape == end.shape == (len(names),)):
+        raise ValueError(
+            f"speaking_flags: segments have {start.shape[0]} starts, {end.shape[0]} ends and {len(names)} speakers"
+        )
+    if not (np.all(np.isfinite(start)) and np.all(np.isfinite(end)) and np.all(end >= start)):
+        raise ValueError("speaking_flags: segment times must be finite with end ≥ start")
+
+    unknown = [s for s in speakers if s not in set(names)]
+    if unknown:
+        warnings.warn(
+            f"speaking_flags: unknown speaker(s) {', '.join(repr(s) for s in unknown)} have no segments "
+            f"(known: {', '.join(repr(s) for s in sorted(set(names)))}); their flags are all False",
+            stacklevel=2,
+        )
+    times = np.round(start_time + np.arange(num_frames) / fps, _TIME_DECIMALS)
+    flags = np.zeros((len(speakers), num_frames), dtype=bool)
+    for row, name in enumerate(speakers):
+        mine = np.array([n == name for n in names], dtype=bool)
+        # Frames lo..hi-1 satisfy start ≤ time < end; a difference array marks them.
+        lo = np.searchsorted(times, start[mine], side="left")
+        hi = np.searchsorted(times, end[mine], side="left")
+        marks = np.zeros(num_frames + 1, dtype=np.int64)
+        np.add.at(marks, lo, 1)
+        np.add.at(marks, hi, -1)
+        flags[row] = np.cumsum(marks[:-1]) > 0
+    overlapping = int(np.count_nonzero(flags.sum(axis=0) >= 2))
+    if overlapping:
+        warnings.warn(
+            f"speaking_flags: {overlapping} of {num_frames} frames have two or more of the speakers speaking at once "
+            "(overlapping speech); they are flagged for each of them",
+            stacklevel=2,
+        )
+    return flags
