@@ -1,4 +1,4 @@
-"""Command-line interface: ``jaxgaze demo``, ``jaxgaze concurrences`` and ``jaxgaze calibrate``.
+"""Command-line interface: ``jaxgaze demo``, ``concurrences``, ``calibrate`` and ``bias``.
 
 ``jaxgaze concurrences INPUT.csv --out OUT.csv`` finds the gaze concurrences
 (Park et al. 2012) of every frame of a recording of primary gaze rays;
@@ -7,7 +7,10 @@ it with the truth; ``jaxgaze calibrate POSES_A POSES_B --out calib.json``
 calibrates wearer A's primary gaze ray (camera frame) from a calibration
 session in which A looks at B's camera, and ``jaxgaze concurrences POSES.csv
 --calibration calib.json ...`` turns raw camera poses into gaze rays with such
-calibrations. Errors in the input are reported as one line on stderr,
+calibrations. ``jaxgaze bias GAZE.csv --speech SEGMENTS.rttm --out bias.json``
+estimates a person's gaze bias from the frames where their conversation
+partner speaks (Siegfried, Odobez et al. 2017) and writes per-frame
+looking-at probabilities. Errors in the input are reported as one line on stderr,
 ``jaxgaze: error: <what> (<file>:<line>)``, with exit status 2, and never
 leave a partial output file behind.
 """
@@ -24,10 +27,13 @@ import math
 import os
 import sys
 import tempfile
+import warnings
 import time
+import typing
 
-__all__ = ["main", "read_rays_csv", "read_calibration_json", "read_camera_poses_csv", "CSV_COLUMNS",
-           "CAMERA_POSE_COLUMNS", "OUTPUT_COLUMNS", "CALIBRATION_KEYS"]
+__all__ = ["main", "read_rays_csv", "read_calibration_json", "read_camera_poses_csv", "read_gaze_csv",
+           "read_targets_csv", "CSV_COLUMNS", "CAMERA_POSE_COLUMNS", "OUTPUT_COLUMNS", "CALIBRATION_KEYS",
+           "GAZE_COLUMNS", "TARGET_COLUMNS", "BIAS_FRAME_COLUMNS"]
 
 #: Required input columns (a ``bandwidth`` column is optional).
 CSV_COLUMNS = ("frame", "person", "ox", "oy", "oz", "dx", "dy", "dz")
@@ -38,10 +44,22 @@ CAMERA_POSE_COLUMNS = ("frame", "person", "qw", "qx", "qy", "qz", "cx", "cy", "c
 CALIBRATION_KEYS = ("wearer", "frame", "eye_center", "direction", "bandwidth")
 #: Output columns, one row per (frame, mode).
 OUTPUT_COLUMNS = ("frame", "mode", "x", "y", "z", "var_x", "var_y", "var_z", "num_rays", "field_value")
+#: Required columns of ``bias``'s own gaze CSV (GAZE.csv when it is not an OpenFace file), one row per
+#: frame: ``yaw, tilt`` the estimated gaze in the head frame (radians, uncorrected), ``q`` the unit
+#: quaternion (w, x, y, z) of R_world_from_head, ``e`` the eye midpoint (world, metres). Optional:
+#: ``timestamp`` (seconds) and the target (the partner's eye midpoint) :data:`TARGET_COLUMNS`.
+GAZE_COLUMNS = ("frame", "yaw", "tilt", "qw", "qx", "qy", "qz", "ex", "ey", "ez")
+#: Target position columns (metres), in GAZE.csv or, with ``frame``, in a ``--targets`` CSV.
+TARGET_COLUMNS = ("tx", "ty", "tz")
+#: The per-frame table of ``bias`` (JSON ``"frames"``, one list per column, and ``--per-frame`` CSV).
+BIAS_FRAME_COLUMNS = ("frame", "time", "partner_speaking", "head_target_angle_deg", "selected",
+                      "error_uncorrected_deg", "error_deg", "looking", "probability")
 
 _DEFAULT_BANDWIDTH = 0.05
 _DEFAULT_CHUNK = 32
 _DEFAULT_SAMPLES = 500
+#: ``bias --frames`` defaults: the paper's N (Mean 20, Med 40); the mixture uses more.
+_BIAS_FRAMES = {"bayes": 60, "lmeds": 40, "mean": 20}
 _MIN_DIRECTION_NORM = 1e-9
 _FLOAT32_MAX = 3.4028234e38
 
@@ -88,6 +106,52 @@ def _int_at_least(minimum: int):
 
     parse.__name__ = f"integer >= {minimum}"
     return parse
+
+
+_BIAS_DESCRIPTION = """\
+Speaker-prior gaze bias adaptation (Siegfried, Odobez et al. 2017). A gaze
+estimator's output g = (yaw, tilt) carries a person-specific bias b: the
+corrected gaze is g + b. People mostly look at a partner who speaks, so the
+frames of the first --window seconds where the partner speaks (SEGMENTS,
+--partner) and the head is within --max-head-angle-deg of the partner are
+candidates; --frames of them are drawn at random (--seed) and b is estimated
+(--method) from their offsets o = angles(target direction) - g. Every frame
+is then labelled "looking at the partner" when the corrected gaze is within
+--threshold-deg of the direction from the eyes to the target (the partner's
+eye midpoint).
+
+GAZE.csv is one of
+  * an OpenFace 2 FeatureExtraction CSV, recognised by its gaze_angle_x and
+    pose_Rx columns (--face-id, --min-confidence). Its gaze and head pose are
+    converted to our camera frame (+x forward along the optical axis, +y left,
+    +z up; metres), and the eyes are taken at OpenFace's head position pose_T.
+    --targets is required and is in that camera frame.
+  * a CSV with a header row and one row per frame (columns in any order,
+    case-insensitive; other columns ignored):
+      frame            integer frame id
+      yaw, tilt        estimated gaze in the head frame (+x forward, +y left,
+                       +z up), radians: yaw positive to the left, tilt up
+      qw, qx, qy, qz   unit quaternion (w, x, y, z) of R_world_from_head
+                       (v_world = R_world_from_head v_head)
+      ex, ey, ez       eye midpoint, world frame, metres
+      tx, ty, tz       optional: the partner's eye midpoint, world, metres
+      timestamp        optional: seconds
+Frame times are the timestamps, else frame / --fps; SEGMENTS uses the same
+clock (seconds). A --targets CSV (frame, tx, ty, tz) must cover every frame.
+
+BIAS.json holds method, bias and bias_deg ([yaw, tilt]; radians, degrees),
+covariance (radians^2) and std_deg (null when unknown), partner, fps, the
+selection (num_candidates, num_selected, selected_frames, inliers; for bayes
+responsibilities and posterior diagnostics), dropped (OpenFace frames dropped,
+per reason) and "frames", the per-frame table with one list per column:
+  frame, time (s), partner_speaking, head_target_angle_deg, selected,
+  error_uncorrected_deg and error_deg (angle between the target direction and
+  the gaze before / after correction), looking (error_deg < threshold) and
+  probability (bayes: the share of the posterior draws of b with which the
+  frame is looking; otherwise looking as 0/1).
+Reader warnings (dropped frames, merged speech segments) go to stderr as
+'jaxgaze: warning: ...' lines and do not fail the command.
+"""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -176,6 +240,59 @@ def build_parser() -> argparse.ArgumentParser:
                             "--calibration' (default: the file name of POSES_A without its extension)")
     calib.add_argument("-q", "--quiet", action="store_true", help="no summary line on stderr")
     calib.set_defaults(func=_cmd_calibrate)
+
+    bias = sub.add_parser(
+        "bias",
+        help="estimate a person's gaze bias from the frames where their partner speaks, and label the frames "
+             "where they look at the partner",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=_BIAS_DESCRIPTION,
+    )
+    bias.add_argument("gaze", metavar="GAZE.csv",
+                      help="per-frame gaze and head pose of the person: an OpenFace 2 FeatureExtraction CSV or "
+                           "the CSV described above")
+    bias.add_argument("--speech", required=True, metavar="SEGMENTS",
+                      help="who speaks when: RTTM (.rttm) or CSV (.csv: start, end, speaker; seconds); another "
+                           "extension is read as RTTM if it has SPEAKER lines, else as CSV")
+    bias.add_argument("--out", required=True, metavar="BIAS.json", help="output JSON (replaced only on success)")
+    bias.add_argument("--targets", default=None, metavar="X,Y,Z|TARGETS.csv",
+                      help="the partner's eye midpoint (metres; camera frame for OpenFace input, else world "
+                           "frame): a constant point X,Y,Z (write --targets=-1,0,0 when it starts with '-') or a "
+                           "CSV with columns frame, tx, ty, tz covering every frame of GAZE.csv; replaces "
+                           "GAZE.csv's tx, ty, tz columns")
+    bias.add_argument("--partner", default=None, metavar="SPEAKER",
+                      help="speaker id of the partner in SEGMENTS (required unless SEGMENTS has one speaker)")
+    bias.add_argument("--speech-file-id", default=None, metavar="ID",
+                      help="recording (file id, 2nd field) to use from an RTTM that holds several")
+    bias.add_argument("--method", choices=("bayes", "lmeds", "mean"), default="bayes",
+                      help="bias estimator: bayes (mixture posterior, NUTS; looking probabilities from its "
+                           "draws), lmeds (the paper's Spk-Med, eq. 2) or mean (Spk-Mean) (default bayes)")
+    bias.add_argument("--frames", type=_int_at_least(1), default=None, metavar="N",
+                      help="frames drawn at random from the candidates (default: "
+                           + ", ".join(f"{n} for {m}" for m, n in _BIAS_FRAMES.items()) + ")")
+    bias.add_argument("--window", type=_positive_float, default=60.0, metavar="SECONDS",
+                      help="candidates come from the first SECONDS of GAZE.csv (default 60)")
+    bias.add_argument("--max-head-angle-deg", type=_positive_float, default=30.0, metavar="DEG",
+                      help="candidates have the head direction within DEG degrees of the target (default 30)")
+    bias.add_argument("--threshold-deg", type=_positive_float, default=10.0, metavar="DEG",
+                      help="looking at the partner: corrected gaze within DEG degrees of the target (default 10)")
+    bias.add_argument("--fps", type=_positive_float, default=None, metavar="FPS",
+                      help="frame rate; required when GAZE.csv has no timestamp column (frame f is then at "
+                           "f / FPS seconds); with timestamps it defaults to their rate and must agree with it")
+    bias.add_argument("--samples", type=_int_at_least(1), default=_DEFAULT_SAMPLES, metavar="N",
+                      help=f"NUTS warm-up steps and draws for --method bayes (default {_DEFAULT_SAMPLES})")
+    bias.add_argument("--seed", type=int, default=0, metavar="S",
+                      help="random seed of the frame draw and of NUTS (default 0)")
+    bias.add_argument("--face-id", type=int, default=None, metavar="ID",
+                      help="OpenFace input: the face_id to use when the file has several faces")
+    bias.add_argument("--min-confidence", type=float, default=0.75, metavar="C",
+                      help="OpenFace input: drop frames with confidence < C (default 0.75)")
+    bias.add_argument("--per-frame", default=None, metavar="PER_FRAME.csv",
+                      help="also write the per-frame table as CSV (columns " + ", ".join(BIAS_FRAME_COLUMNS)
+                           + "; booleans as 0/1)")
+    bias.add_argument("-q", "--quiet", action="store_true",
+                      help="no progress bar and no summary line on stderr (warnings and errors still go there)")
+    bias.set_defaults(func=_cmd_bias)
     return parser
 
 
@@ -910,6 +1027,487 @@ def _cmd_demo(args) -> int:
     print(f"  tracks: {len(trajectories)} (born at frames {births or '-'})")
     print(f"  figure: {args.figure}")
     print(f"  time: simulate {t_sim:.1f} s, concurrences + tracking {t_find:.1f} s, figure {t_fig:.1f} s")
+    return 0
+
+
+# ---------------------------------------------------------------------------
+# bias (Siegfried, Odobez et al. 2017)
+
+
+class _GazeInput(typing.NamedTuple):
+    """GAZE.csv of ``jaxgaze bias``, sorted by frame, in one frame of reference ("world" or "camera")."""
+
+    format: str  # "openface" or "csv"
+    frame: object  # (T,) int64
+    time: object  # (T,) float64 seconds, or None
+    gaze: object  # (T, 2) yaw, tilt in the head frame, radians
+    R_world_from_head: object  # (T, 3, 3) (R_camera_from_head for OpenFace)
+    eye: object  # (T, 3) metres
+    target: object  # (T, 3) metres, or None
+    lines: object  # (T,) line of each frame in the file, or None (OpenFace)
+    dropped: dict
+    reference: str  # "world" or "camera"
+
+
+def _error_from_file_error(error) -> CLIError:
+    """A reader's ``path, line N: what`` ValueError (PoseFileError, OpenFaceFileError, ...) as a CLIError."""
+    return CLIError(_pose_error_text(error), error.path, error.line)
+
+
+def _note_warnings(caught, notes: list) -> None:
+    notes.extend(" ".join(str(w.message).split()) for w in caught)
+
+
+def _is_openface_header(text: str) -> bool:
+    """Whether the first non-blank line names OpenFace's ``gaze_angle_x`` or ``pose_Rx`` column (with
+    only one of them, :func:`jaxgaze.bias.io.read_openface` reports the other as missing)."""
+    for line in text.splitlines():
+        if line.strip():
+            names = {cell.strip().lower() for cell in line.split(",")}
+            return bool({"gaze_angle_x", "pose_rx"} & names)
+    return False
+
+
+def read_gaze_csv(path: str) -> _GazeInput:
+    """Read ``bias``'s own per-frame gaze CSV (columns :data:`GAZE_COLUMNS`, optional ``timestamp`` and
+    :data:`TARGET_COLUMNS`), sorted by frame.
+
+    ``yaw`` must lie in [−π, π] and ``tilt`` in [−π/2, π/2] (radians: degrees are caught here), the
+    quaternion must be unit as for the pose readers, and timestamps must increase with the frame.
+    Raises :class:`CLIError` naming the file and line.
+    """
+    import numpy as np
+
+    from jaxgaze import poses as poses_module
+
+    text = _read_input_text(path, "gaze")
+    reader = csv.reader(io.StringIO(text, newline=""), strict=True)
+    rows = []
+    try:
+        header, names, index, header_line = _read_header(reader, path, GAZE_COLUMNS)
+        present = [c for c in TARGET_COLUMNS if c in names]
+        if present and len(present) < len(TARGET_COLUMNS):
+            missing = [c for c in TARGET_COLUMNS if c not in names]
+            raise CLIError("missing column" + ("s " if len(missing) > 1 else " ")
+                           + ", ".join(f"'{c}'" for c in missing) + " in the header (the target columns "
+                           + ", ".join(TARGET_COLUMNS) + " go together)", path, header_line)
+        target_index = [names.index(c) for c in present]
+        time_index = names.index("timestamp") if "timestamp" in names else None
+        seen: dict[int, int] = {}
+        for row in reader:
+            line = reader.line_num
+            if not any(cell.strip() for cell in row):
+                continue
+            if len(row) != len(header):
+                raise CLIError(f"expected {len(header)} fields as in the header, got {len(row)}", path, line)
+            frame = _parse_frame(row[index["frame"]], path, line)
+            yaw = _parse_float(row[index["yaw"]], "yaw", path, line)
+            tilt = _parse_float(row[index["tilt"]], "tilt", path, line)
+            if abs(yaw) > math.pi + 1e-9:
+                raise CLIError(f"column 'yaw' must be an angle in radians within [-pi, pi], got "
+                               f"{row[index['yaw']].strip()} (degrees?)", path, line)
+            if abs(tilt) > math.pi / 2 + 1e-9:
+                raise CLIError(f"column 'tilt' must be an angle in radians within [-pi/2, pi/2], got "
+                               f"{row[index['tilt']].strip()} (degrees?)", path, line)
+            q = [_parse_float(row[index[c]], c, path, line) for c in ("qw", "qx", "qy", "qz")]
+            try:
+                poses_module.check_quaternion(q, path, line)
+            except poses_module.PoseFileError as error:
+                raise _error_from_file_error(error) from None
+            eye = [_parse_float(row[index[c]], c, path, line) for c in ("ex", "ey", "ez")]
+            target = [_parse_float(row[k], c, path, line) for k, c in zip(target_index, present)]
+            time_s = None if time_index is None else _parse_float(row[time_index], "timestamp", path, line)
+            first = seen.setdefault(frame, line)
+            if first != line:
+                raise CLIError(f"duplicate frame {frame} (first on line {first})", path, line)
+            rows.append((frame, time_s, (yaw, tilt), q, eye, target, line))
+    except csv.Error as error:
+        raise CLIError(f"malformed CSV: {error}", path, reader.line_num) from None
+    if not rows:
+        raise CLIError("no data rows after the header", path, header_line)
+    rows.sort(key=lambda r: r[0])
+    lines = np.array([r[6] for r in rows], dtype=np.int64)
+    time = None
+    if time_index is not None:
+        time = np.array([r[1] for r in rows], dtype=np.float64)
+        bad = np.flatnonzero(np.diff(time) <= 0)
+        if bad.size:
+            i = int(bad[0])
+            raise CLIError(f"timestamps must increase with the frame: frame {rows[i + 1][0]} at {time[i + 1]:g} s "
+                           f"is not after frame {rows[i][0]} at {time[i]:g} s", path, int(lines[i + 1]))
+    q = np.array([r[3] for r in rows], dtype=np.float64)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return _GazeInput(
+        format="csv",
+        frame=np.array([r[0] for r in rows], dtype=np.int64),
+        time=time,
+        gaze=np.array([r[2] for r in rows], dtype=np.float64),
+        R_world_from_head=poses_module.quaternions_to_matrices(q),
+        eye=np.array([r[4] for r in rows], dtype=np.float64),
+        target=np.array([r[5] for r in rows], dtype=np.float64) if present else None,
+        lines=lines,
+        dropped={},
+        reference="world",
+    )
+
+
+def _read_openface_gaze(path: str, face_id, min_confidence: float, notes: list) -> _GazeInput:
+    import warnings
+
+    import numpy as np
+
+    from jaxgaze.bias.io import OpenFaceFileError, read_openface
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            track = read_openface(path, min_confidence=min_confidence, face_id=face_id)
+        except OpenFaceFileError as error:
+            raise _error_from_file_error(error) from None
+        gaze = np.asarray(track.gaze_angles_head, dtype=np.float64)
+    _note_warnings(caught, notes)
+    time = np.asarray(track.timestamp, dtype=np.float64)
+    bad = np.flatnonzero(np.diff(time) <= 0)
+    if bad.size:
+        i = int(bad[0])
+        raise CLIError(f"timestamps must increase with the frame: frame {track.frame[i + 1]} at {time[i + 1]:g} s "
+                       f"is not after frame {track.frame[i]} at {time[i]:g} s", path)
+    return _GazeInput(format="openface", frame=np.asarray(track.frame, dtype=np.int64), time=time, gaze=gaze,
+                      R_world_from_head=np.asarray(track.R_camera_from_head, dtype=np.float64),
+                      eye=np.asarray(track.head_position_camera, dtype=np.float64), target=None, lines=None,
+                      dropped=dict(track.dropped), reference="camera")
+
+
+def _read_bias_gaze(args, notes: list) -> _GazeInput:
+    """GAZE.csv as OpenFace (by its header) or our gaze CSV."""
+    text = _read_input_text(args.gaze, "gaze")
+    if _is_openface_header(text):
+        if not math.isfinite(args.min_confidence):
+            raise CLIError(f"--min-confidence must be finite, got {args.min_confidence}")
+        return _read_openface_gaze(args.gaze, args.face_id, args.min_confidence, notes)
+    if args.face_id is not None:
+        raise CLIError("--face-id is only for OpenFace input (no gaze_angle_x and pose_Rx columns here)", args.gaze)
+    return read_gaze_csv(args.gaze)
+
+
+def read_targets_csv(path: str) -> dict:
+    """Read a ``bias --targets`` CSV: columns ``frame, tx, ty, tz`` (metres). Returns ``{frame: (3,)}``."""
+    import numpy as np
+
+    columns = ("frame",) + TARGET_COLUMNS
+    text = _read_input_text(path, "targets")
+    reader = csv.reader(io.StringIO(text, newline=""), strict=True)
+    targets: dict[int, object] = {}
+    lines: dict[int, int] = {}
+    try:
+        header, _, index, header_line = _read_header(reader, path, columns)
+        for row in reader:
+            line = reader.line_num
+            if not any(cell.strip() for cell in row):
+                continue
+            if len(row) != len(header):
+                raise CLIError(f"expected {len(header)} fields as in the header, got {len(row)}", path, line)
+            frame = _parse_frame(row[index["frame"]], path, line)
+            point = np.array([_parse_float(row[index[c]], c, path, line) for c in TARGET_COLUMNS])
+            first = lines.setdefault(frame, line)
+            if first != line:
+                raise CLIError(f"duplicate frame {frame} (first on line {first})", path, line)
+            targets[frame] = point
+    except csv.Error as error:
+        raise CLIError(f"malformed CSV: {error}", path, reader.line_num) from None
+    if not targets:
+        raise CLIError("no data rows after the header", path, header_line)
+    return targets
+
+
+def _constant_point(text: str):
+    """``"x,y,z"`` → ``(3,)`` array, or ``None`` when ``text`` is not three numbers (then it is a path)."""
+    import numpy as np
+
+    parts = text.split(",")
+    if len(parts) != 3:
+        return None
+    try:
+        point = np.array([float(p) for p in parts])
+    except ValueError:
+        return None
+    if not np.all(np.isfinite(point)):
+        raise CLIError(f"--targets point must be finite, got {text!r}")
+    return point
+
+
+def _bias_targets(args, gaze: _GazeInput):
+    """``((T, 3) target positions, description)`` from --targets or GAZE.csv's tx, ty, tz columns."""
+    import numpy as np
+
+    if args.targets is None:
+        if gaze.target is not None:
+            return gaze.target, "GAZE.csv columns tx, ty, tz"
+        if gaze.format == "openface":
+            raise CLIError("an OpenFace file has no target positions: pass --targets X,Y,Z or a CSV of frame, tx, "
+                           "ty, tz (the partner's eye midpoint, camera frame +x forward, +y left, +z up, metres)",
+                           args.gaze)
+        raise CLIError("no target positions: GAZE.csv has no tx, ty, tz columns; pass --targets X,Y,Z or a CSV of "
+                       "frame, tx, ty, tz (the partner's eye midpoint, world frame, metres)", args.gaze)
+    point = _constant_point(args.targets)
+    if point is not None:
+        return np.broadcast_to(point, gaze.eye.shape).copy(), "constant " + ",".join(repr(float(x)) for x in point)
+    table = read_targets_csv(args.targets)
+    missing = [int(f) for f in gaze.frame if int(f) not in table]
+    if missing:
+        raise CLIError(f"frames of GAZE.csv and the targets do not match: no target for frame {missing[0]} "
+                       f"({len(missing)} of {len(gaze.frame)} frames of {args.gaze} missing)", args.targets)
+    return np.stack([table[int(f)] for f in gaze.frame]), args.targets
+
+
+def _bias_times(args, gaze: _GazeInput):
+    """``((T,) frame times in seconds, fps)``: the timestamps, else frame / --fps."""
+    import numpy as np
+
+    if gaze.time is None:
+        if args.fps is None:
+            raise CLIError("GAZE.csv has no timestamp column: pass --fps to time frame f at f / FPS seconds",
+                           args.gaze)
+        return gaze.frame / args.fps, args.fps
+    estimate = None
+    if len(gaze.frame) >= 2:
+        estimate = round(float(1.0 / np.median(np.diff(gaze.time) / np.diff(gaze.frame))), 6)
+    if args.fps is not None and estimate is not None and abs(args.fps - estimate) > 0.01 * estimate:
+        raise CLIError(f"--fps {args.fps:g} disagrees with the timestamps of GAZE.csv ({estimate:.3f} frames per "
+                       "second); leave --fps out to use the timestamps", args.gaze)
+    return gaze.time, (args.fps if args.fps is not None else estimate)
+
+
+def _rttm_file_ids(text: str) -> list:
+    ids = []
+    for line in text.splitlines():
+        fields = line.split()
+        if len(fields) >= 2 and fields[0] == "SPEAKER" and fields[1] not in ids:
+            ids.append(fields[1])
+    return ids
+
+
+def _read_speech(args, notes: list):
+    """Speech segments from an RTTM or a CSV (by extension, else by content)."""
+    import warnings
+
+    from jaxgaze.bias.io import SpeechFileError, read_rttm, read_segments_csv
+
+    path = args.speech
+    text = _read_input_text(path, "speech")
+    ext = os.path.splitext(path)[1].lower()
+    rttm = ext == ".rttm" or (ext != ".csv" and bool(_rttm_file_ids(text)))
+    if args.speech_file_id is not None and not rttm:
+        raise CLIError("--speech-file-id is only for RTTM speech files", path)
+    if rttm and args.speech_file_id is None:
+        ids = _rttm_file_ids(text)
+        if len(ids) > 1:
+            raise CLIError("the RTTM holds several recordings (file ids " + ", ".join(ids) + "); choose one with "
+                           "--speech-file-id", path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            segments = read_rttm(path, file_id=args.speech_file_id) if rttm else read_segments_csv(path)
+        except SpeechFileError as error:
+            raise _error_from_file_error(error) from None
+    _note_warnings(caught, notes)
+    return segments
+
+
+def _bias_partner(args, segments) -> str:
+    speakers = segments.speakers
+    listed = ", ".join(f"'{s}'" for s in speakers)
+    if args.partner is None:
+        if len(speakers) == 1:
+            return speakers[0]
+        raise CLIError(f"several speakers ({listed}): name the partner (the person looked at) with --partner",
+                       args.speech)
+    if args.partner not in speakers:
+        raise CLIError(f"unknown partner speaker '{args.partner}' (speakers in the file: {listed})", args.speech)
+    return args.partner
+
+
+def _where_frame(gaze: _GazeInput, i: int, path: str):
+    return (path, None if gaze.lines is None else int(gaze.lines[i]))
+
+
+def _round_list(values, digits: int = 4) -> list:
+    return [round(float(v), digits) for v in values]
+
+
+def _cmd_bias(args) -> int:
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxgaze.bias.estimators import estimate_bias
+    from jaxgaze.bias.io import speaking_at
+    from jaxgaze.bias.looking import (
+        angular_error,
+        candidate_frames,
+        gaze_offsets,
+        head_target_angle,
+        is_looking_at,
+        looking_probability,
+        select_frames,
+        target_direction_head,
+    )
+
+    method = args.method
+    requested = args.frames if args.frames is not None else _BIAS_FRAMES[method]
+    if method == "lmeds" and requested < 3:
+        raise CLIError(f"--method lmeds needs --frames 3 or more, got {requested}: with fewer it cannot tell the "
+                       "frames that look at the partner from the others")
+    _check_output_directory(args.out)
+    if args.per_frame is not None:
+        _check_output_directory(args.per_frame, "per-frame table")
+        if os.path.abspath(args.per_frame) == os.path.abspath(args.out):
+            raise CLIError("--per-frame and --out must be different files", args.out)
+    notes: list[str] = []  # reader warnings, printed once every input has been checked
+
+    gaze = _read_bias_gaze(args, notes)
+    target, target_source = _bias_targets(args, gaze)
+    times, fps = _bias_times(args, gaze)
+    segments = _read_speech(args, notes)
+    partner = _bias_partner(args, segments)
+
+    distance = np.linalg.norm(target - gaze.eye, axis=1)
+    close = np.flatnonzero(distance < 1e-3)
+    if close.size:
+        i = int(close[0])
+        raise CLIError(f"the target is at the eyes (closer than 1 mm) in frame {gaze.frame[i]}: is --targets in the "
+                       f"{gaze.reference} frame, in metres?", *_where_frame(gaze, i, args.gaze))
+
+    u = np.asarray(target_direction_head(jnp.asarray(gaze.eye), jnp.asarray(target),
+                                         jnp.asarray(gaze.R_world_from_head)))
+    head_angle = np.asarray(head_target_angle(jnp.asarray(u)))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        speaking = speaking_at(segments, [partner], times)[0]
+    notes.extend(str(w.message) for w in caught)
+    in_window = (times - times[0]) < args.window
+    # The window is applied here on the frame times (frames may be missing); select_frames sees it as open.
+    open_window = dict(fps=fps or 1.0, max_head_angle_deg=args.max_head_angle_deg, window_s=math.inf)
+    candidates = np.asarray(candidate_frames(jnp.asarray(speaking & in_window), jnp.asarray(head_angle),
+                                             **open_window))
+    if not candidates.any():
+        n_window = int(in_window.sum())
+        n_speaking = int((speaking & in_window).sum())
+        raise CLIError(f"no selectable frames: in the first {args.window:g} s of GAZE.csv ({n_window} frames, "
+                       f"{times[0]:g}-{times[in_window][-1]:g} s) partner '{partner}' speaks in {n_speaking}, and in "
+                       f"none of those is the head within {args.max_head_angle_deg:g} degrees of the target "
+                       f"(speech from {float(np.min(segments.start)):g} to {float(np.max(segments.end)):g} s)",
+                       args.gaze)
+    num_candidates = int(candidates.sum())
+    if method == "lmeds" and num_candidates < 3:
+        raise CLIError(f"lmeds needs at least 3 selectable frames, found {num_candidates}: use --method mean or "
+                       "bayes, or a longer --window", args.gaze)
+    if num_candidates < requested:
+        notes.append(f"only {num_candidates} selectable frame(s) for --frames {requested}: using all of them")
+    for note in notes:
+        print(f"jaxgaze: warning: {note}", file=sys.stderr)
+
+    key_select, key_fit = jax.random.split(jax.random.key(args.seed))
+    try:
+        selection = select_frames(key_select, speaking & in_window, head_angle, num_frames=requested, **open_window)
+    except ValueError as error:
+        raise CLIError(str(error), args.gaze) from None
+    chosen = np.asarray(selection.indices)
+    offsets = np.asarray(gaze_offsets(jnp.asarray(gaze.gaze[chosen]), jnp.asarray(u[chosen])))
+
+    try:
+        estimate = estimate_bias(offsets, method, key=key_fit, num_warmup=args.samples, num_samples=args.samples,
+                                 progress_bar=_progress(args) and method == "bayes")
+    except ValueError as error:
+        raise CLIError(str(error), args.gaze) from None
+    bias = np.asarray(estimate.bias, dtype=np.float64)
+    covariance = None if estimate.covariance is None else np.asarray(estimate.covariance, dtype=np.float64)
+    inliers = np.asarray(estimate.inliers, dtype=bool)
+    posterior = None
+    draws = None
+    if method == "bayes":
+        draws = np.asarray(estimate.samples["bias"], dtype=np.float64)
+        if not np.all(np.isfinite(draws)):
+            raise CLIError("posterior sampling failed: non-finite draws of the bias", args.gaze)
+        posterior = {
+            "num_warmup": int(args.samples),
+            "num_samples": int(args.samples),
+            "num_divergent": int(estimate.posterior.sample_stats["diverging"].sum()),
+            "looking_share_mean": float(np.mean(estimate.samples["looking_share"])),
+            "responsibilities": _round_list(estimate.responsibilities),
+        }
+
+    g, uu, b = jnp.asarray(gaze.gaze), jnp.asarray(u), jnp.asarray(bias)
+    error_raw = np.degrees(np.asarray(angular_error(g, uu), dtype=np.float64))
+    error = np.degrees(np.asarray(angular_error(g, uu, b), dtype=np.float64))
+    looking = np.asarray(is_looking_at(g, uu, b, threshold_deg=args.threshold_deg), dtype=bool)
+    if draws is not None:
+        probability = np.asarray(looking_probability(g, uu, jnp.asarray(draws), threshold_deg=args.threshold_deg),
+                                 dtype=np.float64)
+    else:
+        probability = looking.astype(np.float64)
+    selected = np.zeros(len(gaze.frame), dtype=bool)
+    selected[chosen] = True
+
+    table = {
+        "frame": [int(f) for f in gaze.frame],
+        "time": [float(t) for t in times],
+        "partner_speaking": [bool(x) for x in speaking],
+        "head_target_angle_deg": _round_list(np.degrees(head_angle)),
+        "selected": [bool(x) for x in selected],
+        "error_uncorrected_deg": _round_list(error_raw),
+        "error_deg": _round_list(error),
+        "looking": [bool(x) for x in looking],
+        "probability": _round_list(probability, 6),
+    }
+    record = {
+        "method": method,
+        "units": "bias [yaw, tilt] in the head frame (+x forward, +y left, +z up): radians (bias, covariance in "
+                 "radians^2) and degrees (_deg); corrected gaze = gaze + bias; time in seconds",
+        "bias": [float(x) for x in bias],
+        "bias_deg": [float(math.degrees(x)) for x in bias],
+        "covariance": None if covariance is None else [[float(x) for x in r] for r in covariance],
+        "std_deg": None if covariance is None else [float(math.degrees(math.sqrt(max(v, 0.0))))
+                                                   for v in np.diag(covariance)],
+        "input": {"gaze": args.gaze, "format": gaze.format, "frame_of_reference": gaze.reference,
+                  "speech": args.speech, "targets": target_source},
+        "partner": partner,
+        "fps": fps,
+        "seed": args.seed,
+        "window_s": args.window,
+        "max_head_angle_deg": args.max_head_angle_deg,
+        "threshold_deg": args.threshold_deg,
+        "num_frames": int(len(gaze.frame)),
+        "num_candidates": int(selection.num_candidates),
+        "num_requested": int(requested),
+        "num_selected": int(selection.num_selected),
+        "selected_frames": [int(gaze.frame[i]) for i in chosen],
+        "selected_offsets_deg": [_round_list(np.degrees(o)) for o in offsets],
+        "inliers": [bool(x) for x in inliers],
+        "posterior": posterior,
+        "dropped": gaze.dropped,
+        "num_looking": int(looking.sum()),
+        "mean_probability": float(probability.mean()),
+        "frames": table,
+    }
+    text = json.dumps(record, indent=1, allow_nan=False) + "\n"
+    if args.per_frame is None:
+        with _atomic_output(args.out) as handle:
+            handle.write(text)
+    else:
+        with _atomic_output(args.per_frame, what="per-frame table") as frames_handle:
+            writer = csv.writer(frames_handle, lineterminator="\n")
+            writer.writerow(BIAS_FRAME_COLUMNS)
+            for row in zip(*(table[c] for c in BIAS_FRAME_COLUMNS)):
+                writer.writerow([int(x) if isinstance(x, bool) else x for x in row])
+            with _atomic_output(args.out) as handle:
+                handle.write(text)
+    if not args.quiet:
+        spread = "" if covariance is None else " ± ({:.2f}°, {:.2f}°)".format(*record["std_deg"])
+        print(f"jaxgaze: bias (yaw, tilt) = ({record['bias_deg'][0]:+.2f}°, {record['bias_deg'][1]:+.2f}°){spread} "
+              f"({method}, {selection.num_selected} of {selection.num_candidates} candidate frames); looking at "
+              f"'{partner}' in {int(looking.sum())} of {len(gaze.frame)} frames; written to {args.out}"
+              + (f" and {args.per_frame}" if args.per_frame else ""), file=sys.stderr)
     return 0
 
 

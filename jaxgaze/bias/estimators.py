@@ -293,13 +293,14 @@ def sample_bias_posterior(
     return values, stats
 
 
-def _fit_bayes(o: jax.Array, key, num_warmup, num_samples, num_chains, target_accept_prob, model_options):
+def _fit_bayes(o: jax.Array, key, num_warmup, num_samples, num_chains, target_accept_prob, progress_bar,
+               model_options):
     import arviz as az
 
     key = jax.random.key(0) if key is None else key
     values, stats = sample_bias_posterior(key, o, num_warmup=num_warmup, num_samples=num_samples,
                                           num_chains=num_chains, target_accept_prob=target_accept_prob,
-                                          **model_options)
+                                          progress_bar=progress_bar, **model_options)
     values = {k: np.asarray(v) for k, v in values.items()}
     stats = {k: np.asarray(v) for k, v in stats.items()}
     posterior = {k: values[k] for k in ("bias", "noise_scale", "correlation", "looking_share", "responsibilities")}
@@ -341,6 +342,7 @@ def estimate_bias(
     num_samples: int = 300,
     num_chains: int = 1,
     target_accept_prob: float = 0.8,
+    progress_bar: bool = False,
     **model_options,
 ) -> BiasEstimate:
     """Estimate a person's gaze bias from the offsets ``o_i`` ``(N, 2)`` (radians) of selected frames.
@@ -363,7 +365,8 @@ def estimate_bias(
     if method == "bayes":
         options.update(num_warmup=num_warmup, num_samples=num_samples, num_chains=num_chains,
                        target_accept_prob=target_accept_prob)
-        result = _fit_bayes(o, key, num_warmup, num_samples, num_chains, target_accept_prob, model_options)
+        result = _fit_bayes(o, key, num_warmup, num_samples, num_chains, target_accept_prob, progress_bar,
+                            model_options)
     elif method == "mean":
         x = np.asarray(o)
         result = BiasEstimate(bias=np.asarray(jnp.mean(o, axis=0)), method="mean", num_frames=n,

@@ -51,6 +51,7 @@ __all__ = [
     "read_rttm",
     "read_segments_csv",
     "speaking_flags",
+    "speaking_at",
 ]
 
 #: Columns :func:`read_openface` needs (``face_id`` is used when present).
@@ -536,14 +537,39 @@ def speaking_flags(
     if not (np.all(np.isfinite(start)) and np.all(np.isfinite(end)) and np.all(end >= start)):
         raise ValueError("speaking_flags: segment times must be finite with end ≥ start")
 
+    times = start_time + np.arange(num_frames) / fps
+    return _flags_at(start, end, names, speakers, times, "speaking_flags")
+
+
+def speaking_at(segments: SpeechSegments, speakers: Sequence[str], times) -> np.ndarray:
+    """:func:`speaking_flags` at given frame times ``(T,)`` (seconds, increasing), e.g. when frames were dropped.
+
+    Same rule (``start ≤ time < end``, times rounded to 1 ns) and the same warnings.
+    """
+    if isinstance(speakers, str):
+        raise TypeError(f"speaking_at: speakers must be a sequence of names, not the string {speakers!r}")
+    speakers = [str(s) for s in speakers]
+    t = np.asarray(times, dtype=np.float64)
+    if t.ndim != 1 or not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
+        raise ValueError("speaking_at: times must be a finite, non-decreasing (T,) array of seconds")
+    start = np.asarray(segments.start, dtype=np.float64).reshape(-1)
+    end = np.asarray(segments.end, dtype=np.float64).reshape(-1)
+    if not (np.all(np.isfinite(start)) and np.all(np.isfinite(end)) and np.all(end >= start)):
+        raise ValueError("speaking_at: segment times must be finite with end ≥ start")
+    return _flags_at(start, end, tuple(segments.speaker), speakers, t, "speaking_at")
+
+
+def _flags_at(start, end, names, speakers, times, caller: str) -> np.ndarray:
+    """Flags ``(len(speakers), T)`` at the given times, with the unknown-speaker and overlap warnings."""
+    num_frames = times.shape[0]
     unknown = [s for s in speakers if s not in set(names)]
     if unknown:
         warnings.warn(
-            f"speaking_flags: unknown speaker(s) {', '.join(repr(s) for s in unknown)} have no segments "
+            f"{caller}: unknown speaker(s) {', '.join(repr(s) for s in unknown)} have no segments "
             f"(known: {', '.join(repr(s) for s in sorted(set(names)))}); their flags are all False",
-            stacklevel=2,
+            stacklevel=3,
         )
-    times = np.round(start_time + np.arange(num_frames) / fps, _TIME_DECIMALS)
+    times = np.round(times, _TIME_DECIMALS)
     flags = np.zeros((len(speakers), num_frames), dtype=bool)
     for row, name in enumerate(speakers):
         mine = np.array([n == name for n in names], dtype=bool)
@@ -557,8 +583,8 @@ def speaking_flags(
     overlapping = int(np.count_nonzero(flags.sum(axis=0) >= 2))
     if overlapping:
         warnings.warn(
-            f"speaking_flags: {overlapping} of {num_frames} frames have two or more of the speakers speaking at once "
+            f"{caller}: {overlapping} of {num_frames} frames have two or more of the speakers speaking at once "
             "(overlapping speech); they are flagged for each of them",
-            stacklevel=2,
+            stacklevel=3,
         )
     return flags
