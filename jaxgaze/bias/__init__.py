@@ -24,6 +24,7 @@ from jaxgaze.bias.io import (
     read_openface,
     read_rttm,
     read_segments_csv,
+    speaking_at,
     speaking_flags,
 )
 from jaxgaze.bias.looking import (
@@ -58,6 +59,7 @@ __all__ = [
     "read_rttm",
     "read_segments_csv",
     "speaking_flags",
+    "speaking_at",
     "FrameSelection",
     "angular_error",
     "candidate_frames",
