@@ -5,6 +5,7 @@
 * :mod:`jaxgaze.bias.estimators`: the bias from the offsets — mean, LMedS (eq. 2) and
   a Bayesian mixture (numpyro NUTS).
 * :mod:`jaxgaze.bias.io`: OpenFace 2 CSV files and speaking segments (RTTM, CSV).
+* :mod:`jaxgaze.bias.evaluate`: the paper's Table 1, Fig. 5 and Fig. 6 on simulated dyads.
 """
 
 from jaxgaze.bias.estimators import (
@@ -16,6 +17,7 @@ from jaxgaze.bias.estimators import (
     sample_bias_posterior,
     update_bias,
 )
+from jaxgaze.bias.evaluate import BiasEvaluation, evaluate_bias_methods, format_figure_tables, format_table1
 from jaxgaze.bias.io import (
     OpenFaceFileError,
     OpenFaceTrack,
@@ -44,6 +46,10 @@ from jaxgaze.bias.looking import (
 )
 
 __all__ = [
+    "BiasEvaluation",
+    "evaluate_bias_methods",
+    "format_table1",
+    "format_figure_tables",
     "METHODS",
     "BiasEstimate",
     "bias_model",
