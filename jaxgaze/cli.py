@@ -58,6 +58,7 @@ BIAS_FRAME_COLUMNS = ("frame", "time", "partner_speaking", "head_target_angle_de
 _DEFAULT_BANDWIDTH = 0.05
 _DEFAULT_CHUNK = 32
 _DEFAULT_SAMPLES = 500
+_BIAS_SILENT_FRAMES = 256  # at most this many silent-partner frames for the Bayes contrast
 #: ``bias --frames`` defaults: the paper's N (Mean 20, Med 40); the mixture uses more.
 _BIAS_FRAMES = {"bayes": 60, "lmeds": 40, "mean": 20}
 _MIN_DIRECTION_NORM = 1e-9
@@ -1415,9 +1416,16 @@ def _cmd_bias(args) -> int:
     chosen = np.asarray(selection.indices)
     offsets = np.asarray(gaze_offsets(jnp.asarray(gaze.gaze[chosen]), jnp.asarray(u[chosen])))
 
+    extra = {}
+    if method == "bayes":  # the contrast: same window and head filter while the partner is silent
+        silent = np.flatnonzero(np.asarray(candidate_frames(jnp.asarray(~speaking & in_window),
+                                                            jnp.asarray(head_angle), **open_window)))
+        silent = silent[:: max(1, -(-len(silent) // _BIAS_SILENT_FRAMES))]
+        if len(silent):
+            extra["silent_offsets"] = np.asarray(gaze_offsets(jnp.asarray(gaze.gaze[silent]), jnp.asarray(u[silent])))
     try:
         estimate = estimate_bias(offsets, method, key=key_fit, num_warmup=args.samples, num_samples=args.samples,
-                                 progress_bar=_progress(args) and method == "bayes")
+                                 progress_bar=_progress(args) and method == "bayes", **extra)
     except ValueError as error:
         raise CLIError(str(error), args.gaze) from None
     bias = np.asarray(estimate.bias, dtype=np.float64)

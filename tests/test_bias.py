@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxgaze.bias.estimators import (
+    contrast_log_density,
     BiasEstimate,
     estimate_bias,
     lmeds_bias,
@@ -475,3 +476,17 @@ def test_bayes_coverage_over_synthetic_people():
     print(f"bias error: median {np.median(errors_deg):.2f}°, max {errors_deg.max():.2f}°; 90% coverage {covered:.2f}")
     assert np.median(errors_deg) < 1.0 and errors_deg.max() < 2.5
     assert covered >= 0.75  # P(≤ 14 of 20 | 0.9) ≈ 0.04
+
+
+# ----------------------------------------------------------- contrast with the silent partner
+
+
+def test_contrast_log_density_matches_a_brute_force_kernel_sum(x64):
+    rng = np.random.default_rng(3)
+    o, silent = rng.normal(size=(5, 2)) * 0.1, rng.normal(size=(7, 2)) * 0.1
+    mask = np.array([True] * 6 + [False])
+    h = 0.05
+    expected = [math.log(np.mean([math.exp(-np.sum((x - y) ** 2) / (2 * h * h)) / (2 * math.pi * h * h)
+                                  for y in silent[mask]])) for x in o]
+    got = contrast_log_density(jnp.asarray(o), jnp.asarray(silent), jnp.asarray(mask), h)
+    np.testing.assert_allclose(np.asarray(got), expected, rtol=1e-10)

@@ -462,7 +462,7 @@ def test_bias_progress_bar_on_tty(dyad, tmp_path, capsys, monkeypatch):
 
     calls = []
 
-    def fake_posterior(key, offsets, **kwargs):
+    def fake_posterior(key, offsets, mask=None, silent_offsets=None, **kwargs):
         calls.append(kwargs)
         n, s = offsets.shape[0], 8
         bias = np.tile(np.radians(dyad["bias_deg"]), (1, s, 1))

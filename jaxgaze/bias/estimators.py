@@ -43,6 +43,7 @@ __all__ = [
     "lmeds_bias",
     "bias_model",
     "sample_bias_posterior",
+    "contrast_log_density",
     "METHODS",
 ]
 
@@ -175,6 +176,7 @@ def lmeds_bias(
 def bias_model(
     offsets: Float[Array, "N 2"],
     mask: Bool[Array, " N"] | None = None,
+    log_contrast: Float[Array, " N"] | None = None,
     *,
     bias_scale_deg: float = 15.0,
     noise_scale_deg: float = 4.0,
@@ -198,6 +200,14 @@ def bias_model(
       ``−inf`` (unlike a uniform box), and its pull on ``b`` is ``(σ/20°)²`` that of
       an inlier. Its scale is fixed so that the two components cannot swap.
 
+    **Contrast with the silent partner** (``log_contrast``, optional): the log density
+    of each offset under the glances made while the partner is *silent*
+    (:func:`contrast_log_density`). The speaker prior says people look at a speaker
+    5–8× more often than at a silent partner, so a cluster of offsets that is as
+    dense in silent frames (the desk, the notes) is "elsewhere", and the partner is
+    the cluster that speaking enriches. The elsewhere density becomes
+    ``0.8 q(o_i) + 0.2 N(b, (elsewhere_scale)² I₂)``.
+
     ``mask (N,)`` marks real rows (padding adds nothing). Records
     ``responsibilities (N,)``, the posterior probability of "looking" per frame, and
     ``correlation``. Angles in radians; ``*_deg`` options in degrees.
@@ -213,13 +223,39 @@ def bias_model(
     looking_share = numpyro.sample("looking_share", dist.Beta(*looking_prior))
     scale_tril = noise_scale[:, None] * corr_chol
     looking = jnp.log(looking_share) + dist.MultivariateNormal(bias, scale_tril=scale_tril).log_prob(o)
-    elsewhere = jnp.log1p(-looking_share) + dist.Normal(bias, elsewhere_scale_deg * _DEG).to_event(1).log_prob(o)
+    broad = dist.Normal(bias, elsewhere_scale_deg * _DEG).to_event(1).log_prob(o)
+    if log_contrast is not None:
+        broad = jnp.logaddexp(jnp.log(0.8) + log_contrast, jnp.log(0.2) + broad)
+    elsewhere = jnp.log1p(-looking_share) + broad
     per_frame = jnp.logaddexp(looking, elsewhere)
     numpyro.deterministic("responsibilities", jnp.exp(looking - per_frame))
     numpyro.factor("offsets", jnp.sum(jnp.where(mask, per_frame, 0.0)))
 
 
 _SUMMARY_VARS = ["bias", "noise_scale", "correlation", "looking_share"]
+
+
+@jax.jit
+def contrast_log_density(
+    offsets: Float[Array, "... N 2"],
+    silent_offsets: Float[Array, "... M 2"],
+    silent_mask: Bool[Array, "... M"] | None = None,
+    bandwidth: float = 4.0 * _DEG,
+) -> Float[Array, "... N"]:
+    """``log q(o_i)``: a Gaussian kernel density (bandwidth in radians) of the silent-partner offsets.
+
+    ``q(o) = (1/M) Σ_j N(o; o'_j, bandwidth² I₂)`` over the masked silent offsets
+    ``o'_j`` (frames of the same window where the partner does not speak and the
+    head faces them, :func:`jaxgaze.bias.looking.candidate_frames` with the
+    partner's silence). With no silent frame it is ``−inf`` (no contrast).
+    """
+    o = jnp.asarray(offsets)
+    silent = jnp.asarray(silent_offsets, o.dtype)
+    mask = jnp.ones(silent.shape[:-1], bool) if silent_mask is None else jnp.asarray(silent_mask, bool)
+    kernel = dist.Normal(silent[..., None, :, :], bandwidth).to_event(1).log_prob(o[..., :, None, :])  # (..., N, M)
+    kernel = jnp.where(mask[..., None, :], kernel, -jnp.inf)
+    count = jnp.sum(mask, axis=-1, keepdims=True)
+    return jax.nn.logsumexp(kernel, axis=-1) - jnp.log(jnp.maximum(count, 1))
 
 
 @functools.lru_cache(maxsize=8)
@@ -237,6 +273,8 @@ def sample_bias_posterior(
     key: PRNGKeyArray,
     offsets: Float[Array, "... N 2"],
     mask: Bool[Array, "... N"] | None = None,
+    silent_offsets: Float[Array, "... M 2"] | None = None,
+    silent_mask: Bool[Array, "... M"] | None = None,
     *,
     num_warmup: int = 300,
     num_samples: int = 300,
@@ -251,7 +289,12 @@ def sample_bias_posterior(
     compiled single-chain program, reused for every person and chain, with ``N``
     padded to a power of two (masked) so that fits of similar size share it. Each
     chain starts at the person's LMedS estimate, in the "looking" mode rather than
-    at a cluster of glances elsewhere.
+    at a cluster of glances elsewhere. With ``silent_offsets`` (the offsets of the
+    silent-partner frames, see :func:`bias_model`) the model contrasts the two.
+    The chains still start at LMedS: starting at the candidate that the contrast
+    model scores best gained 0.4° on 80 simulated people, but sent one person of 48
+    to a cluster 39° off (that wrong cluster scored 25 nats higher, so it is the
+    model, not the sampler, that prefers it there).
 
     ``key`` is one key (split over people and chains). Returns ``(values, stats)``:
     dicts of arrays ``(..., chains, draws, ...)`` — ``bias``, ``noise_scale``,
@@ -272,7 +315,16 @@ def sample_bias_posterior(
     batch = o.shape[:-2]
     flat_o = jnp.repeat(o.reshape((-1,) + o.shape[-2:]), num_chains, axis=0)
     flat_m = jnp.repeat(m.reshape((-1, o.shape[-2])), num_chains, axis=0)
+    model_args = (flat_o, flat_m)
     start = jax.vmap(lmeds_bias)(flat_o, flat_m)[0]
+    if silent_offsets is not None:
+        silent = jnp.broadcast_to(jnp.asarray(silent_offsets, o.dtype), batch + jnp.shape(silent_offsets)[-2:])
+        sm = (jnp.ones(silent.shape[:-1], bool) if silent_mask is None
+              else jnp.broadcast_to(jnp.asarray(silent_mask, bool), silent.shape[:-1]))
+        log_q = contrast_log_density(o, silent, sm)  # (..., N_padded)
+        flat_q = jnp.repeat(log_q.reshape((-1, o.shape[-2])), num_chains, axis=0)
+        flat_q = jnp.where(jnp.isfinite(flat_q), flat_q, -1e30)  # no silent frame: no contrast
+        model_args = (flat_o, flat_m, flat_q)
     noise0 = model_options.get("noise_scale_deg", 4.0) * _DEG
     count = flat_o.shape[0]
     init = {  # numpyro's unconstrained space
@@ -282,7 +334,7 @@ def sample_bias_posterior(
         "looking_share": jnp.full(count, 0.3, flat_o.dtype),  # logit π ≈ 0.57
     }
     values, stats = sample_nuts(
-        _model(tuple(sorted(model_options.items()))), key, (flat_o, flat_m), init,
+        _model(tuple(sorted(model_options.items()))), key, model_args, init,
         num_warmup=num_warmup, num_samples=num_samples, target_accept_prob=target_accept_prob,
         progress_bar=progress_bar, description="gaze bias posterior",
     )
@@ -294,13 +346,14 @@ def sample_bias_posterior(
 
 
 def _fit_bayes(o: jax.Array, key, num_warmup, num_samples, num_chains, target_accept_prob, progress_bar,
-               model_options):
+               model_options, silent_offsets=None):
     import arviz as az
 
     key = jax.random.key(0) if key is None else key
-    values, stats = sample_bias_posterior(key, o, num_warmup=num_warmup, num_samples=num_samples,
-                                          num_chains=num_chains, target_accept_prob=target_accept_prob,
-                                          progress_bar=progress_bar, **model_options)
+    values, stats = sample_bias_posterior(key, o, None, silent_offsets, num_warmup=num_warmup,
+                                          num_samples=num_samples, num_chains=num_chains,
+                                          target_accept_prob=target_accept_prob, progress_bar=progress_bar,
+                                          **model_options)
     values = {k: np.asarray(v) for k, v in values.items()}
     stats = {k: np.asarray(v) for k, v in stats.items()}
     posterior = {k: values[k] for k in ("bias", "noise_scale", "correlation", "looking_share", "responsibilities")}
@@ -343,6 +396,7 @@ def estimate_bias(
     num_chains: int = 1,
     target_accept_prob: float = 0.8,
     progress_bar: bool = False,
+    silent_offsets: Float[Array, "M 2"] | None = None,
     **model_options,
 ) -> BiasEstimate:
     """Estimate a person's gaze bias from the offsets ``o_i`` ``(N, 2)`` (radians) of selected frames.
@@ -350,7 +404,12 @@ def estimate_bias(
     ``method``: ``"mean"`` (N ≥ 1), ``"lmeds"`` (eq. 2, N ≥ 3; the default, the
     paper's Spk-Med) or ``"bayes"`` (:func:`bias_model` with NUTS; ``key`` defaults
     to ``jax.random.key(0)``, so a fit is reproducible; ``model_options`` go to the
-    model, e.g. ``looking_prior=(2.85, 2.15)``).
+    model, e.g. ``looking_prior=(2.85, 2.15)``). For ``"bayes"``, ``silent_offsets``
+    ``(M, 2)`` are the offsets of frames of the same window where the partner is
+    silent (and the head faces them): the model then contrasts speaking with silence
+    (:func:`bias_model`), which keeps a cluster of glances at the desk or the notes
+    from passing for the partner. On 80 simulated people it brought the Bayes error
+    from 5.47° to 5.17° (GT-Mean oracle 4.78°, Spk-Med 5.89°).
 
     Raises ``ValueError`` for an unknown method, offsets that are not ``(N, 2)``,
     NaN/inf (naming the row), and for no frames (N = 0).
@@ -365,8 +424,12 @@ def estimate_bias(
     if method == "bayes":
         options.update(num_warmup=num_warmup, num_samples=num_samples, num_chains=num_chains,
                        target_accept_prob=target_accept_prob)
+        silent = None
+        if silent_offsets is not None and len(silent_offsets):
+            silent = _offsets(silent_offsets, method="silent_offsets")
+            options["silent_offsets"] = np.asarray(silent)
         result = _fit_bayes(o, key, num_warmup, num_samples, num_chains, target_accept_prob, progress_bar,
-                            model_options)
+                            model_options, silent)
     elif method == "mean":
         x = np.asarray(o)
         result = BiasEstimate(bias=np.asarray(jnp.mean(o, axis=0)), method="mean", num_frames=n,

@@ -17,7 +17,9 @@ method           bias from
 ``gt_med``       LMedS on 40 ground-truth looking frames (*GT-Med*)
 ``bayes``        ours: the posterior mean of the Bayesian mixture
                  (:func:`jaxgaze.bias.estimators.bias_model`) on the Spk candidates of the
-                 window thinned to one frame per ``bayes_spacing_s`` (at most ``num_bayes``)
+                 window thinned to one frame per ``bayes_spacing_s`` (at most ``num_bayes``),
+                 contrasted with the silent-partner frames of the window (same head
+                 filter, thinned the same way, at most ``4 · num_bayes``)
 ===============  =============================================================================
 
 Frames and metrics (Sec. 4.1, "Performance Measures"):
@@ -516,6 +518,12 @@ def evaluate_bias_methods(
         gt_idx, gt_ok = random_frames(k_gt, gt, min(num_draw, T))
         stride = max(1, int(math.ceil(bayes_spacing_s * fps - 1e-9)))
         bay_idx, bay_ok = thinned_frames(k_bayes, spk, min_stride=stride, max_frames=int(num_bayes))
+        # The contrast: the same window and head filter while the partner is silent.
+        quiet = jax.vmap(lambda s, a: candidate_frames(s, a, fps=fps, max_head_angle_deg=max_head_angle_deg,
+                                                       window_s=window_s, start_s=window_start_s))(
+            ~_flat(rec.partner_speaking), head_angle)
+        quiet_idx, quiet_ok = thinned_frames(jax.random.fold_in(k_bayes, 1), quiet, min_stride=stride,
+                                             max_frames=4 * int(num_bayes))
         spk_o, gt_o = _take(offsets, spk_idx), _take(offsets, gt_idx)
         n = gaze.shape[0]
         estimates = [
@@ -529,6 +537,7 @@ def evaluate_bias_methods(
         per_batch.append(dict(
             rec=rec, fps=fps, times=times, evaluated=evaluated, gaze=gaze, u=u, looking=looking,
             estimates=jnp.stack(estimates, axis=1), bayes_offsets=_take(offsets, bay_idx), bayes_valid=bay_ok,
+            silent_offsets=_take(offsets, quiet_idx), silent_valid=quiet_ok,
             num_candidates=np.asarray(n_spk),
             spk_precision=np.asarray(jnp.sum(spk & looking, axis=1) / jnp.maximum(n_spk, 1)),
             num_gt=np.asarray(jnp.sum(gt, axis=1)),
@@ -543,7 +552,12 @@ def evaluate_bias_methods(
     empty = num_bay == 0
     if empty.any():  # no frame: fit a dummy frame (discarded below) so that the sampler stays finite
         bay_ok = bay_ok.at[:, 0].set(bay_ok[:, 0] | jnp.asarray(empty))
-    values, stats = sample_bias_posterior(key_nuts, bay_o, bay_ok, num_warmup=num_warmup,
+    silent_width = max(d["silent_offsets"].shape[1] for d in per_batch)
+    pad_silent = lambda a, v: jnp.pad(a, [(0, 0), (0, silent_width - a.shape[1])] + [(0, 0)] * (a.ndim - 2),  # noqa: E731
+                                      constant_values=v)
+    quiet_o = jnp.concatenate([pad_silent(d["silent_offsets"], 0.0) for d in per_batch])
+    quiet_ok = jnp.concatenate([pad_silent(d["silent_valid"], False) for d in per_batch])
+    values, stats = sample_bias_posterior(key_nuts, bay_o, bay_ok, quiet_o, quiet_ok, num_warmup=num_warmup,
                                           num_samples=num_samples, **options)
     draws = np.asarray(values["bias"]).reshape(bay_o.shape[0], -1, 2)
     bayes_mean = np.where(empty[:, None], 0.0, draws.mean(axis=1))
