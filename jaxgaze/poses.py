@@ -23,7 +23,6 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
 import re
 from typing import NamedTuple, Optional
 
@@ -31,6 +30,7 @@ import jax
 import numpy as np
 
 from jaxgaze.geometry import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
+from jaxgaze.textfiles import InputFileError, parse_number, read_lines
 
 __all__ = [
     "R_OURS_FROM_OPENCV",
@@ -69,14 +69,8 @@ POSE_CSV_COLUMNS = ("frame", "qw", "qx", "qy", "qz", "cx", "cy", "cz")
 QUATERNION_NORM_TOLERANCE = 1e-3
 
 
-class PoseFileError(ValueError):
+class PoseFileError(InputFileError):
     """A pose file is malformed. The message starts with ``path, line N:``."""
-
-    def __init__(self, message: str, path, line: Optional[int] = None):
-        self.path = os.fspath(path)
-        self.line = line
-        where = self.path if line is None else f"{self.path}, line {line}"
-        super().__init__(f"{where}: {message}")
 
 
 class CameraPoses(NamedTuple):
@@ -189,29 +183,11 @@ def _matrix_to_quat(R: np.ndarray) -> np.ndarray:
 
 
 def _read_text(path) -> list[str]:
-    try:
-        with open(path, "rb") as handle:
-            data = handle.read()
-    except FileNotFoundError:
-        raise PoseFileError("file not found", path) from None
-    except IsADirectoryError:
-        raise PoseFileError("is a directory, not a file", path) from None
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as error:
-        line = data[: error.start].count(b"\n") + 1
-        raise PoseFileError(f"not UTF-8 text: {error.reason}", path, line) from None
-    return text.splitlines()
+    return read_lines(path, PoseFileError)
 
 
 def _number(text: str, what: str, path, line: int) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise PoseFileError(f"{what} is not a number: {text!r}", path, line) from None
-    if not math.isfinite(value):
-        raise PoseFileError(f"{what} is not finite: {text!r}", path, line)
-    return value
+    return parse_number(text, what, path, line, PoseFileError)
 
 
 def _integer(text: str, what: str, path, line: int) -> int:

@@ -39,6 +39,7 @@ import numpy as np
 
 from jaxgaze.geometry import direction_to_yaw_pitch, unit
 from jaxgaze.poses import R_OURS_FROM_OPENCV
+from jaxgaze.textfiles import InputFileError, parse_number, read_lines
 
 __all__ = [
     "OPENFACE_COLUMNS",
@@ -89,44 +90,16 @@ R_OPENFACE_MODEL_FROM_HEAD.setflags(write=False)
 _TIME_DECIMALS = 9
 
 
-class _FileError(ValueError):
-    def __init__(self, message: str, path, line: Optional[int] = None):
-        self.path = os.fspath(path)
-        self.line = line
-        where = self.path if line is None else f"{self.path}, line {line}"
-        super().__init__(f"{where}: {message}")
-
-
-class OpenFaceFileError(_FileError):
+class OpenFaceFileError(InputFileError):
     """An OpenFace CSV is malformed. The message starts with ``path, line N:``."""
 
 
-class SpeechFileError(_FileError):
+class SpeechFileError(InputFileError):
     """An RTTM or segment CSV is malformed. The message starts with ``path, line N:``."""
 
 
-def _read_lines(path, error) -> list[str]:
-    try:
-        with open(path, "rb") as handle:
-            data = handle.read()
-    except FileNotFoundError:
-        raise error("file not found", path) from None
-    except IsADirectoryError:
-        raise error("is a directory, not a file", path) from None
-    try:
-        return data.decode("utf-8-sig").splitlines()
-    except UnicodeDecodeError as exc:
-        raise error(f"not UTF-8 text: {exc.reason}", path, data[: exc.start].count(b"\n") + 1) from None
-
-
-def _number(text: str, what: str, path, line: int, error) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise error(f"{what} is not a number: {text!r}", path, line) from None
-    if not math.isfinite(value):
-        raise error(f"{what} is not finite: {text!r}", path, line)
-    return value
+_read_lines = read_lines
+_number = parse_number
 
 
 # ---------------------------------------------------------------------------

@@ -1,0 +1,50 @@
+"""Reading the text inputs (pose files, OpenFace CSV, speech segments): one error type, one reader.
+
+Every reader reports a malformed file as a ``ValueError`` whose message starts with
+``path, line N:`` (or ``path:`` when no line applies), so that the command line can
+print it as one line.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Optional
+
+__all__ = ["InputFileError", "read_lines", "parse_number"]
+
+
+class InputFileError(ValueError):
+    """A malformed input file. The message starts with ``path, line N:``."""
+
+    def __init__(self, message: str, path, line: Optional[int] = None):
+        self.path = os.fspath(path)
+        self.line = line
+        where = self.path if line is None else f"{self.path}, line {line}"
+        super().__init__(f"{where}: {message}")
+
+
+def read_lines(path, error: type[InputFileError] = InputFileError) -> list[str]:
+    """The lines of a UTF-8 text file (a BOM is dropped); ``error`` for a missing file or bad bytes."""
+    try:
+        with open(path, "rb") as handle:
+            data = handle.read()
+    except FileNotFoundError:
+        raise error("file not found", path) from None
+    except IsADirectoryError:
+        raise error("is a directory, not a file", path) from None
+    try:
+        return data.decode("utf-8-sig").splitlines()
+    except UnicodeDecodeError as exc:
+        raise error(f"not UTF-8 text: {exc.reason}", path, data[: exc.start].count(b"\n") + 1) from None
+
+
+def parse_number(text: str, what: str, path, line: int, error: type[InputFileError] = InputFileError) -> float:
+    """``float(text)``, finite, or ``error`` naming ``what`` at ``path, line``."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise error(f"{what} is not a number: {text!r}", path, line) from None
+    if not math.isfinite(value):
+        raise error(f"{what} is not finite: {text!r}", path, line)
+    return value
