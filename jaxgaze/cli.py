@@ -27,9 +27,11 @@ import math
 import os
 import sys
 import tempfile
-import warnings
 import time
 import typing
+import warnings
+
+from jaxgaze.textfiles import header_problem
 
 __all__ = ["main", "read_rays_csv", "read_calibration_json", "read_camera_poses_csv", "read_gaze_csv",
            "read_targets_csv", "CSV_COLUMNS", "CAMERA_POSE_COLUMNS", "OUTPUT_COLUMNS", "CALIBRATION_KEYS",
@@ -359,14 +361,9 @@ def _read_header(reader, path: str, columns) -> tuple[list, list, dict, int]:
                        path, max(reader.line_num, 1))
     header_line = reader.line_num
     names = [cell.strip().lower() for cell in header]
-    duplicated = sorted({n for n in names if names.count(n) > 1 and n})
-    if duplicated:
-        raise CLIError(f"duplicate column '{duplicated[0]}' in the header", path, header_line)
-    missing = [c for c in columns if c not in names]
-    if missing:
-        raise CLIError(
-            "missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
-            + " in the header (need " + ", ".join(columns) + ")", path, header_line)
+    problem = header_problem(names, columns, hint="need " + ", ".join(columns))
+    if problem:
+        raise CLIError(problem, path, header_line)
     return header, names, {name: names.index(name) for name in columns}, header_line
 
 

@@ -30,7 +30,7 @@ import jax
 import numpy as np
 
 from jaxgaze.geometry import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
-from jaxgaze.textfiles import InputFileError, parse_number, read_lines
+from jaxgaze.textfiles import InputFileError, header_problem, parse_number, read_lines
 
 __all__ = [
     "R_OURS_FROM_OPENCV",
@@ -363,17 +363,10 @@ def read_pose_csv(path) -> CameraPoses:
             raise PoseFileError(f"malformed CSV: {error}", path, n) from None
     header_line, header = rows[0]
     names = [cell.strip().lower() for cell in header]
-    duplicated = sorted({n for n in names if n and names.count(n) > 1})
-    if duplicated:
-        raise PoseFileError(f"duplicate column '{duplicated[0]}' in the header", path, header_line)
-    missing = [c for c in POSE_CSV_COLUMNS if c not in names]
-    if missing:
-        raise PoseFileError(
-            "missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
-            + " in the header (need " + ", ".join(POSE_CSV_COLUMNS) + ", optionally timestamp)",
-            path,
-            header_line,
-        )
+    problem = header_problem(names, POSE_CSV_COLUMNS,
+                             hint="need " + ", ".join(POSE_CSV_COLUMNS) + ", optionally timestamp")
+    if problem:
+        raise PoseFileError(problem, path, header_line)
     index = {c: names.index(c) for c in POSE_CSV_COLUMNS}
     ts_index = names.index("timestamp") if "timestamp" in names else None
     if len(rows) == 1:

@@ -11,7 +11,7 @@ import math
 import os
 from typing import Optional
 
-__all__ = ["InputFileError", "read_lines", "parse_number"]
+__all__ = ["InputFileError", "read_lines", "parse_number", "header_problem"]
 
 
 class InputFileError(ValueError):
@@ -48,3 +48,21 @@ def parse_number(text: str, what: str, path, line: int, error: type[InputFileErr
     if not math.isfinite(value):
         raise error(f"{what} is not finite: {text!r}", path, line)
     return value
+
+
+def header_problem(names: list[str], required, *, hint: str, watched=None) -> Optional[str]:
+    """What is wrong with a CSV header, in one line, or ``None``.
+
+    A column of ``watched`` (default: every non-empty name) that appears twice, or
+    columns of ``required`` that are missing (``hint`` says what is needed). The
+    caller raises its own error type at the header line.
+    """
+    watched = [n for n in names if n] if watched is None else list(watched)
+    duplicated = [n for n in dict.fromkeys(watched) if names.count(n) > 1]
+    if duplicated:
+        return f"duplicate column '{duplicated[0]}' in the header"
+    missing = [c for c in required if c not in names]
+    if missing:
+        return ("missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
+                + f" in the header ({hint})")
+    return None

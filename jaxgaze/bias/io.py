@@ -39,7 +39,7 @@ import numpy as np
 
 from jaxgaze.geometry import direction_to_yaw_pitch, unit
 from jaxgaze.poses import R_OURS_FROM_OPENCV
-from jaxgaze.textfiles import InputFileError, parse_number, read_lines
+from jaxgaze.textfiles import InputFileError, header_problem, parse_number, read_lines
 
 __all__ = [
     "OPENFACE_COLUMNS",
@@ -194,17 +194,10 @@ def read_openface(path, *, min_confidence: float = 0.75, face_id: Optional[int] 
         raise OpenFaceFileError("empty file: expected an OpenFace CSV header (frame, face_id, timestamp, ...)", path, 1)
     header_line, header = content[0]
     names = [cell.strip() for cell in header.split(",")]
-    for column in OPENFACE_COLUMNS + ("face_id",):
-        if names.count(column) > 1:
-            raise OpenFaceFileError(f"duplicate column '{column}' in the header", path, header_line)
-    missing = [c for c in OPENFACE_COLUMNS if c not in names]
-    if missing:
-        raise OpenFaceFileError(
-            "missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
-            + " in the header (is this an OpenFace 2 FeatureExtraction CSV?)",
-            path,
-            header_line,
-        )
+    problem = header_problem(names, OPENFACE_COLUMNS, hint="is this an OpenFace 2 FeatureExtraction CSV?",
+                             watched=OPENFACE_COLUMNS + ("face_id",))
+    if problem:
+        raise OpenFaceFileError(problem, path, header_line)
     columns = [c for c in _BOOKKEEPING if c in names] + list(_GAZE_POSE)
     index = [names.index(c) for c in columns]
     if len(content) == 1:
@@ -438,17 +431,9 @@ def read_segments_csv(path) -> SpeechSegments:
             raise SpeechFileError(f"malformed CSV: {exc}", path, number) from None
     header_line, header = rows[0]
     names = [cell.strip().lower() for cell in header]
-    for column in required:
-        if names.count(column) > 1:
-            raise SpeechFileError(f"duplicate column '{column}' in the header", path, header_line)
-    missing = [c for c in required if c not in names]
-    if missing:
-        raise SpeechFileError(
-            "missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
-            + " in the header (need start, end, speaker)",
-            path,
-            header_line,
-        )
+    problem = header_problem(names, required, hint="need start, end, speaker", watched=required)
+    if problem:
+        raise SpeechFileError(problem, path, header_line)
     if len(rows) == 1:
         raise SpeechFileError("no data rows after the header", path, header_line)
     i_start, i_end, i_speaker = (names.index(c) for c in required)
