@@ -141,6 +141,60 @@ def _jax_runner(iterations: int, max_stretch: int = 1):
     return jax.jit(lambda rays, seeds: jaxgaze.meanshift(rays, seeds, tol=0.0, max_iter=iterations, **options))
 
 
+def _xla_runner(iterations: int, max_stretch: int = 1):
+    """The unfused XLA loop (what ``meanshift`` runs on CPU), for comparison with the fused GPU kernel."""
+    from jaxgaze.concurrence import _xla_meanshift, ray_projector
+
+    return jax.jit(lambda rays, seeds: _xla_meanshift(ray_projector(rays), seeds, 0.0, iterations, max_stretch))
+
+
+def tune_fused(rays, seeds, iterations: int, max_stretch: int, shapes: str) -> None:
+    """Print the fused kernel's rate for tile shapes ``SEEDSxRAYSxWARPS,...`` (GPU only).
+
+    Each shape is compiled and timed in a child process, so one that crashes the
+    compiler costs only its own line.
+    """
+    import subprocess
+
+    n, s = rays.origins.shape[0], seeds.shape[0]
+    for shape in shapes.split(","):
+        child = subprocess.run(
+            [sys.executable, "-W", "ignore", __file__, "--tune-one", shape, "--sizes", f"{n}x{s}",
+             "--iterations", str(iterations), "--max-stretch", str(max_stretch)],
+            capture_output=True, text=True, env=dict(os.environ, XLA_PYTHON_CLIENT_PREALLOCATE="false"),
+        )
+        lines = (child.stdout + child.stderr).strip().splitlines()
+        print(f"  tune {shape}: " + (lines[-1] if child.returncode == 0 and lines else
+                                     f"failed (exit {child.returncode}): {(lines or ['?'])[-1][:200]}"))
+        sys.stdout.flush()
+
+
+def tune_one(shape: str, size: tuple[int, int], iterations: int, max_stretch: int) -> None:
+    from jaxgaze.concurrence import ray_projector
+    from jaxgaze.meanshift_kernel import fused_meanshift
+
+    block_seeds, block_rays, warps = (int(v) for v in shape.split("x")[:3])
+    approximate = not shape.endswith("exact")
+    origins, directions, h, seeds = make_scene(*size)
+    proj = ray_projector(GazeRays(origins, directions, h))
+    seeds = jnp.asarray(seeds)
+
+    def run():
+        return jax.block_until_ready(fused_meanshift(proj, seeds, 0.0, max_iter=iterations, max_stretch=max_stretch,
+                                                     block_seeds=block_seeds, block_rays=block_rays, num_warps=warps,
+                                                     approximate=approximate))
+
+    run()
+    best = min(_timed(run) for _ in range(3))
+    print(f"{size[0] * size[1] * iterations / best:.3e} pair-it/s ({best * 1e3:.1f} ms)")
+
+
+def _timed(fn) -> float:
+    start = time.perf_counter()
+    fn()
+    return time.perf_counter() - start
+
+
 def time_interleaved(fns: dict, repeats: int, max_seconds: float) -> dict[str, list[float]]:
     """Time each callable up to ``repeats`` times, alternating between them.
 
@@ -212,6 +266,9 @@ def main(argv=None) -> int:
                         help="passed to jaxgaze.meanshift when it accepts it (default 1 = plain eq. 6, as numpy); "
                              "K > 1 times the stretched-step variant, which does log2(K)+1 extra field evaluations per "
                              "iteration that the pair-iteration count does not include, and skips the agreement check")
+    parser.add_argument("--tune", default=None, metavar="SEEDSxRAYSxWARPS,...",
+                        help="on a GPU, also time the fused kernel with these tile shapes, e.g. 32x64x4,64x32x4; a suffix xexact divides exactly instead of rcp.approx")
+    parser.add_argument("--tune-one", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--quick", action="store_true", help="small sizes, few iterations and repeats (smoke test)")
     args = parser.parse_args(argv)
 
@@ -226,7 +283,14 @@ def main(argv=None) -> int:
     if iterations < 1 or repeats < 1:
         raise SystemExit("--iterations and --repeats must be positive")
 
+    if args.tune and jax.default_backend() == "gpu" and os.environ.get("XLA_PYTHON_CLIENT_PREALLOCATE") != "false":
+        raise SystemExit("--tune: set XLA_PYTHON_CLIENT_PREALLOCATE=false so the child processes get GPU memory")
+    if args.tune_one:
+        tune_one(args.tune_one, sizes[0], iterations, args.max_stretch)
+        return 0
+
     devices = jax.devices()
+    on_gpu = jax.default_backend() == "gpu"
     device_text = ", ".join(f"{d.platform}:{d.device_kind}" for d in devices)
     print(f"jax {jax.__version__}, numpy {np.__version__}, python {platform.python_version()}")
     print(f"host: {cpu_model()}, {os.cpu_count()} CPUs")
@@ -272,6 +336,12 @@ def main(argv=None) -> int:
         # --- timed repeats, JAX and numpy alternating
         # (numpy needs no warm-up beyond the agreement check that already ran it on these arrays)
         fns = {"jax": lambda: jax.block_until_ready(runner(rays, seeds))}
+        if on_gpu:  # the unfused XLA loop, to show what the fused kernel gains
+            xla = _xla_runner(iterations, args.max_stretch)
+            jax.block_until_ready(xla(rays, seeds))
+            fns["xla"] = lambda: jax.block_until_ready(xla(rays, seeds))
+            if args.tune:
+                tune_fused(rays, seeds, iterations, args.max_stretch, args.tune)
         if do_numpy:
             fns["numpy"] = lambda: numpy_meanshift(origins, directions, h, seeds_np, np_iters)
         times = time_interleaved(fns, repeats, args.max_seconds)
@@ -280,6 +350,10 @@ def main(argv=None) -> int:
         jax_med = pairs * iterations / statistics.median(jt)
         print(f"[{n} rays x {s} seeds] jax  : {iterations} it x {len(jt)} repeats, best {min(jt)*1e3:9.2f} ms, "
               f"median {statistics.median(jt)*1e3:9.2f} ms -> {fmt_rate(jax_rate)} pair-it/s")
+        if on_gpu:
+            xt = times["xla"]
+            print(f"[{n} rays x {s} seeds] xla  : unfused loop, best {min(xt)*1e3:9.2f} ms -> "
+                  f"{fmt_rate(pairs * iterations / min(xt))} pair-it/s; fused kernel is {min(xt) / min(jt):.1f}x faster")
         np_rate = np_med = float("nan")
         if do_numpy:
             nt = times["numpy"]

@@ -44,6 +44,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxgaze.geometry import orthonormal_basis
+from jaxgaze.meanshift_kernel import fused_meanshift
 from jaxgaze.rays import GazeRays
 
 __all__ = [
@@ -170,7 +171,7 @@ def ray_projector(rays: GazeRays) -> RayProjector:
     """Precompute the :class:`RayProjector` of one frame of rays."""
     u1, u2 = jax.vmap(orthonormal_basis)(rays.directions)
     basis = jnp.stack([rays.directions, u1, u2], axis=1)  # (N, 3, 3)
-    offsets = jnp.einsum("nij,nj->ni", basis, rays.origins)
+    offsets = jnp.einsum("nij,nj->ni", basis, rays.origins, precision=jax.lax.Precision.HIGHEST)
     h = rays.bandwidth
     return RayProjector(
         basis.reshape(-1, 3), offsets.reshape(-1), rays.origins, rays.directions, h, rays.mask,
@@ -180,7 +181,8 @@ def ray_projector(rays: GazeRays) -> RayProjector:
 
 def _ray_coordinates(proj: RayProjector, x: Float[Array, "3"]):
     """``(t, r², in front)`` of ``x`` for every ray, and ``1/t`` (0 where not in front)."""
-    tab = (proj.basis @ x - proj.offsets).reshape(-1, 3)
+    # HIGHEST: GPUs would otherwise round this float32 product through TF32 (10-bit mantissa).
+    tab = (jnp.matmul(proj.basis, x, precision=jax.lax.Precision.HIGHEST) - proj.offsets).reshape(-1, 3)
     t, r2 = tab[:, 0], tab[:, 1] ** 2 + tab[:, 2] ** 2
     ok = (t > 0) & proj.mask
     inv_t = jnp.where(ok, 1.0 / jnp.where(ok, t, 1.0), 0.0)
@@ -199,7 +201,8 @@ def _meanshift_step(proj: RayProjector, x: Float[Array, "3"]) -> tuple[Array, Ar
     inv_t2 = inv_t * inv_t  # 0 behind the eye and for padded rays, so w = 0 there
     w = jnp.exp(proj.exponent_scale * r2 * inv_t2) * (inv_t2 * proj.weight_scale)
     total = jnp.sum(w)
-    target = w @ proj.origins + (w * (r2 * inv_t + t)) @ proj.directions
+    exact = jax.lax.Precision.HIGHEST
+    target = jnp.matmul(w, proj.origins, precision=exact) + jnp.matmul(w * (r2 * inv_t + t), proj.directions, precision=exact)
     x_new = jnp.where(total > 0, target / jnp.where(total > 0, total, 1.0), x)
     return x_new, total
 
@@ -210,6 +213,33 @@ def _field_value(proj: RayProjector, x: Float[Array, "3"]) -> Array:
     h = proj.bandwidth
     k = jnp.where(ok, jnp.exp(proj.exponent_scale * r2 * inv_t * inv_t), 0.0) / (h * math.sqrt(2.0 * math.pi))
     return jnp.sum(k) / jnp.maximum(jnp.sum(proj.mask), 1)
+
+
+def _xla_meanshift(proj: RayProjector, seeds, tol, max_iter: int, max_stretch: int):
+    """:func:`meanshift`'s loop in plain XLA: each seed runs its own ``while_loop`` (vmapped)."""
+    stretches = 2.0 ** jnp.arange(int(math.log2(max_stretch)) + 1, dtype=proj.origins.dtype)
+
+    def run_one(x0):
+        def cond(state):
+            _, it, done, _ = state
+            return (~done) & (it < max_iter)
+
+        def body(state):
+            x, it, _, _ = state
+            m, total = _meanshift_step(proj, x)
+            if max_stretch == 1:
+                x_new = m
+            else:
+                candidates = x + stretches[:, None] * (m - x)
+                values = jax.vmap(lambda c: _field_value(proj, c))(candidates)
+                x_new = candidates[jnp.argmax(values)]
+            step = jnp.linalg.norm(m - x)
+            return x_new, it + 1, step < tol, total > 0
+
+        x, it, done, alive = jax.lax.while_loop(cond, body, (x0, jnp.int32(0), jnp.bool_(False), jnp.bool_(True)))
+        return x, it, done & alive
+
+    return jax.vmap(run_one)(seeds)
 
 
 @functools.partial(jax.jit, static_argnames=("max_stretch",))
@@ -235,30 +265,11 @@ def meanshift(
     """
     if not isinstance(max_stretch, int) or max_stretch < 1 or max_stretch & (max_stretch - 1):
         raise ValueError(f"max_stretch must be a power of two ≥ 1, got {max_stretch}")
-    stretches = 2.0 ** jnp.arange(int(math.log2(max_stretch)) + 1, dtype=rays.origins.dtype)
     proj = ray_projector(rays)
-
-    def run_one(x0):
-        def cond(state):
-            _, it, done, _ = state
-            return (~done) & (it < max_iter)
-
-        def body(state):
-            x, it, _, _ = state
-            m, total = _meanshift_step(proj, x)
-            if max_stretch == 1:
-                x_new = m
-            else:
-                candidates = x + stretches[:, None] * (m - x)
-                values = jax.vmap(lambda c: _field_value(proj, c))(candidates)
-                x_new = candidates[jnp.argmax(values)]
-            step = jnp.linalg.norm(m - x)
-            return x_new, it + 1, step < tol, total > 0
-
-        x, it, done, alive = jax.lax.while_loop(cond, body, (x0, jnp.int32(0), jnp.bool_(False), jnp.bool_(True)))
-        return x, it, done & alive
-
-    points, iterations, converged = jax.vmap(run_one)(seeds)
+    if jax.default_backend() == "gpu":
+        points, iterations, converged = fused_meanshift(proj, seeds, tol, max_iter=max_iter, max_stretch=max_stretch)
+    else:
+        points, iterations, converged = _xla_meanshift(proj, seeds, tol, max_iter, max_stretch)
     values = jax.vmap(lambda p: _field_value(proj, p))(points)
     return MeanShiftResult(points, values, iterations, converged)
 
@@ -285,7 +296,7 @@ def _member_residuals(x: Float[Array, "3"], args) -> Float[Array, "N 3"]:
     """Whitened perspective distances ``d_i(x)/h_i`` of the member rays (0 for others)."""
     rays, members = args
     diff = x - rays.origins
-    t = jnp.einsum("nk,nk->n", diff, rays.directions)
+    t = jnp.einsum("nk,nk->n", diff, rays.directions, precision=jax.lax.Precision.HIGHEST)
     # Members sit in front of the eye at the mode; clamp so a wild LM step cannot divide by 0.
     t_safe = jnp.maximum(t, 1e-3)
     d = (diff - t[:, None] * rays.directions) / (t_safe * rays.bandwidth)[:, None]
