@@ -4,7 +4,7 @@ Frames and units are documented in ``docs/conventions.md``: world/head/camera
 frames, metres, radians inside (degrees only in names ending ``_deg``).
 """
 
-from jaxgaze import bias, geometry, metrics, poses, simulate, simulate_calibration, simulate_dyadic
+from jaxgaze import bias, geometry, gp, metrics, poses, simulate, simulate_calibration, simulate_dyadic, simulate_tabletop
 from jaxgaze.bias import (
     BiasEstimate,
     estimate_bias,
@@ -18,6 +18,7 @@ from jaxgaze.bias import (
     update_bias,
 )
 from jaxgaze.calibration import CalibrationResult, ConeCalibration, calibrate_cone
+from jaxgaze.gp import GazeRegression, fit_gaze_regression, fit_gaze_regression_nn
 from jaxgaze.calibration_posterior import (
     CalibrationPosterior,
     ConcurrenceEnsemble,
@@ -49,6 +50,11 @@ __version__ = "0.1.0"
 
 __all__ = [
     "bias",
+    "gp",
+    "simulate_tabletop",
+    "GazeRegression",
+    "fit_gaze_regression",
+    "fit_gaze_regression_nn",
     "simulate_dyadic",
     "BiasEstimate",
     "estimate_bias",

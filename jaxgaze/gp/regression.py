@@ -1,0 +1,166 @@
+"""Gaze direction and target depth from head pose: the two regressors of Yücel et al.
+
+T-CYB 2013 (Sec. V, eq. 6–13) learns two maps from the tracked head pose ``p``
+(pitch, yaw, roll and the head position):
+
+* ``f1(p)``: the gaze direction, the image-plane angle of the line from the
+  head centre to the attended object (radians, ``atan2(dy, dx)`` in image
+  coordinates);
+* ``f2(p)``: the target depth, the image row of the attended object (pixels).
+
+Each is a GP with zero prior mean on standardised inputs and outputs (the
+paper's "offset", eq. 6): ``f1`` with rational quadratic + arc-sine + white
+noise, ``f2`` with linear + white noise (:func:`~jaxgaze.gp.kernels.gaze_direction_kernel`,
+:func:`~jaxgaze.gp.kernels.target_depth_kernel`). The neural-network baseline
+(CogSci paper) fits the same two maps with :func:`~jaxgaze.gp.nn.fit_mlp`.
+
+Standardisation uses the training data: inputs per column, outputs by their
+mean and standard deviation; predictions are mapped back, variances scaled by
+the output variance.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from jaxgaze.gp.exact import FitResult, FittedGP, fit
+from jaxgaze.gp.kernels import gaze_direction_kernel, target_depth_kernel
+from jaxgaze.gp.nn import MLPFit, fit_mlp
+
+__all__ = ["Scaling", "GazePrediction", "GazeRegression", "NNGazeRegression", "fit_gaze_regression",
+           "fit_gaze_regression_nn"]
+
+
+class Scaling(NamedTuple):
+    """Affine standardisation ``z = (x − mean) / scale`` (per column for inputs)."""
+
+    mean: Float[Array, "..."]
+    scale: Float[Array, "..."]
+
+    @staticmethod
+    def of(values) -> "Scaling":
+        values = np.asarray(values, dtype=np.float64)
+        mean = values.mean(axis=0)
+        scale = values.std(axis=0)
+        scale = np.where(scale > 1e-12, scale, 1.0)  # a constant column stays as it is
+        return Scaling(mean, scale)
+
+    def apply(self, values):
+        return (values - self.mean) / self.scale
+
+
+class GazePrediction(NamedTuple):
+    """Predicted ``f1`` (radians) and ``f2`` (px) per frame, with predictive variances.
+
+    The variances are those of a new observation (they include the fitted white
+    noise), so ``mean ± 1.645 sd`` is a 90 % predictive interval. The NN
+    baseline has no variances (``None``).
+    """
+
+    direction: Float[Array, "T"]
+    depth: Float[Array, "T"]
+    direction_variance: Float[Array, "T"] | None = None
+    depth_variance: Float[Array, "T"] | None = None
+
+
+def _check_training_data(features, direction, depth):
+    X = np.asarray(features)
+    if X.ndim != 2:
+        raise ValueError(f"features must be a 2-D array (frames, features), got shape {X.shape}")
+    out = []
+    for name, v in (("direction", direction), ("depth", depth)):
+        v = np.asarray(v)
+        if v.shape != (X.shape[0],):
+            raise ValueError(f"{name} must have shape ({X.shape[0]},) to match features, got {v.shape}")
+        out.append(v)
+    for name, v in (("features", X), ("direction", out[0]), ("depth", out[1])):
+        bad = ~np.isfinite(v)
+        if bad.any():
+            row = int(np.argwhere(bad)[0][0])
+            raise ValueError(f"{name} contains NaN or inf (first at row {row})")
+    return X, out[0], out[1]
+
+
+class GazeRegression(NamedTuple):
+    """The fitted ``f1`` and ``f2`` GPs and the standardisation they were fitted in."""
+
+    direction_gp: FittedGP
+    depth_gp: FittedGP
+    features: Scaling
+    direction_scaling: Scaling
+    depth_scaling: Scaling
+
+    @property
+    def converged(self) -> bool:
+        return self.direction_gp.result == FitResult.successful and self.depth_gp.result == FitResult.successful
+
+    def standardised(self, features):
+        X = np.asarray(features)
+        if X.ndim != 2 or X.shape[1] != self.features.mean.shape[0]:
+            raise ValueError(f"features must have shape (T, {self.features.mean.shape[0]}), got {X.shape}")
+        if not np.all(np.isfinite(X)):
+            raise ValueError(f"features contain NaN or inf (first at row {int(np.argwhere(~np.isfinite(X))[0][0])})")
+        dtype = self.direction_gp.X.dtype
+        return jnp.asarray(self.features.apply(X), dtype)
+
+    def predict(self, features: Float[Array, "T D"]) -> GazePrediction:
+        """Predictive means and variances of ``f1`` and ``f2`` at new head poses (eq. 12–13)."""
+        Z = self.standardised(features)
+        m1, v1 = self.direction_gp.predict(Z)
+        m2, v2 = self.depth_gp.predict(Z)
+        s1, s2 = self.direction_scaling, self.depth_scaling
+        return GazePrediction(m1 * s1.scale + s1.mean, m2 * s2.scale + s2.mean, v1 * s1.scale**2, v2 * s2.scale**2)
+
+
+def fit_gaze_regression(
+    features: Float[Array, "T D"],
+    direction: Float[Array, "T"],
+    depth: Float[Array, "T"],
+    *,
+    key,
+    ard: bool = False,
+) -> GazeRegression:
+    """Fit the ``f1`` (direction) and ``f2`` (depth) GPs by type-II maximum likelihood.
+
+    ``features`` are head poses per frame (e.g. :func:`jaxgaze.simulate_tabletop.head_pose_features`:
+    pitch, yaw, roll in radians and the head position in metres); ``direction``
+    the image-plane gaze angles (radians) and ``depth`` the target rows (px).
+    ``ard`` gives the RQ and arc-sine kernels one lengthscale per feature.
+    Check :attr:`GazeRegression.converged`, or each GP's ``result``.
+    """
+    X, f1, f2 = _check_training_data(features, direction, depth)
+    scaling = Scaling.of(X)
+    s1, s2 = Scaling.of(f1), Scaling.of(f2)
+    dtype = jnp.asarray(np.zeros(1)).dtype  # float64 under jax_enable_x64, else float32
+    Z = jnp.asarray(scaling.apply(X), dtype)
+    k1, k2 = jax.random.split(key)
+    gp1 = fit(gaze_direction_kernel(X.shape[1], ard=ard), Z, jnp.asarray(s1.apply(f1), dtype), key=k1)
+    gp2 = fit(target_depth_kernel(X.shape[1], ard=ard), Z, jnp.asarray(s2.apply(f2), dtype), key=k2)
+    return GazeRegression(gp1, gp2, scaling, s1, s2)
+
+
+class NNGazeRegression(NamedTuple):
+    """The NN baseline: one :class:`~jaxgaze.gp.nn.MLPFit` each for ``f1`` and ``f2``."""
+
+    direction_net: MLPFit
+    depth_net: MLPFit
+
+    def predict(self, features: Float[Array, "T D"]) -> GazePrediction:
+        X = jnp.asarray(features)
+        return GazePrediction(self.direction_net.predict(X), self.depth_net.predict(X))
+
+
+def fit_gaze_regression_nn(features, direction, depth, *, key, **options) -> NNGazeRegression:
+    """Fit the CogSci baseline: two 10-unit networks, online SGD, early stopping (:func:`fit_mlp`)."""
+    X, f1, f2 = _check_training_data(features, direction, depth)
+    dtype = jnp.asarray(np.zeros(1)).dtype
+    X = jnp.asarray(X, dtype)
+    k1, k2 = jax.random.split(key)
+    return NNGazeRegression(
+        fit_mlp(X, jnp.asarray(f1, dtype), key=k1, **options), fit_mlp(X, jnp.asarray(f2, dtype), key=k2, **options)
+    )

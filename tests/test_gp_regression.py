@@ -1,0 +1,166 @@
+"""Head-pose regression on simulated table-top sessions, and the hyperparameter posterior.
+
+Known truth: the simulator's gaze direction f1 and depth f2 per frame.
+"""
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxgaze.gp import kernels
+from jaxgaze.gp.evaluate import evaluate_regression, format_cogsci_table, format_table_i
+from jaxgaze.gp.exact import fit, predict
+from jaxgaze.gp.posterior import sample_hyperparameter_posterior
+from jaxgaze.gp.regression import fit_gaze_regression, fit_gaze_regression_nn
+from jaxgaze.simulate_tabletop import head_pose_features, simulate_tabletop_sessions
+
+
+@pytest.fixture(scope="module")
+def sessions():
+    # Two people, two sessions each: sessions 0, 1 are person 0; 2, 3 person 1.
+    return simulate_tabletop_sessions(jax.random.key(0), num_people=2, sessions_per_person=2, duration_s=60.0)
+
+
+@pytest.fixture(scope="module")
+def scores():
+    """GPR and NN over every self- and cross-referencing split of 4 people x 2 one-minute sessions."""
+    sessions = simulate_tabletop_sessions(jax.random.key(0), num_people=4, sessions_per_person=2, duration_s=60.0)
+    results = evaluate_regression(sessions, key=jax.random.key(1), max_train_frames=400)
+    return {(r.split, r.method): r for r in results}
+
+
+@pytest.mark.parametrize("split", ["self", "cross"])
+def test_gpr_q2_beats_raw_head_pose(scores, split):
+    gpr = scores[split, "gpr"]
+    assert gpr.q2 > gpr.q2_head + 0.1
+    assert gpr.q2_pooled >= gpr.q2 - 0.02  # pooling 4 frames does not hurt
+    assert gpr.mean_angular_deviation < gpr.head_mean_angular_deviation
+
+
+def test_gpr_90_percent_intervals_cover_85_to_95_percent_of_held_out_sessions(scores):
+    # Self-referencing: every held-out session of a person the GP was trained on.
+    assert 0.85 <= scores["self", "gpr"].coverage_90 <= 0.95
+    # Other people: their idiosyncrasies are not in the model, so coverage drops a little (0.82-0.85 measured).
+    assert 0.75 <= scores["cross", "gpr"].coverage_90 <= 0.95
+
+
+def test_nn_baseline_also_beats_head_pose_but_has_no_intervals(scores):
+    for split in ("self", "cross"):
+        nn = scores[split, "nn"]
+        assert nn.q2 > nn.q2_head
+        assert math.isnan(nn.coverage_90)
+
+
+def test_tables_print_every_method_and_group(scores):
+    table = format_table_i(list(scores.values()))
+    assert table.count("| GPR |") == 2 and table.count("| NN |") == 2
+    cogsci = format_cogsci_table(scores["self", "gpr"])
+    for label in ("Q1 (rad)", "Q2(h)", "Q2(hg)", "Q2(hgd)", "near", "peripheral"):
+        assert label in cogsci
+    for row in scores["self", "gpr"].cogsci.values():
+        assert 0 <= row[0] < math.pi and all(0 <= v <= 1 for v in row[1:])
+
+
+def test_regression_predicts_training_truth_closely(sessions):
+    s = sessions[0]
+    X = head_pose_features(s)[::3]
+    model = fit_gaze_regression(X, s.gaze_direction_image[::3], s.target_depth_image[::3], key=jax.random.key(0))
+    assert model.converged
+    pred = model.predict(X)
+    # In-sample errors are far below the spread of the targets.
+    assert np.sqrt(np.mean((np.asarray(pred.direction) - np.asarray(s.gaze_direction_image[::3])) ** 2)) < 0.5 * np.std(
+        np.asarray(s.gaze_direction_image))
+    assert np.all(np.asarray(pred.direction_variance) > 0) and np.all(np.asarray(pred.depth_variance) > 0)
+
+
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (lambda X, a, b: (X[:, 0], a, b), "2-D"),
+        (lambda X, a, b: (X, a[:-1], b), "direction must have shape"),
+        (lambda X, a, b: (X, a, b.at[3].set(jnp.nan)), "depth contains NaN or inf .first at row 3"),
+        (lambda X, a, b: (X.at[5, 1].set(jnp.inf), a, b), "features contains NaN"),
+    ],
+)
+def test_regression_rejects_bad_training_data(sessions, bad, message):
+    s = sessions[0]
+    args = bad(head_pose_features(s)[:50], s.gaze_direction_image[:50], s.target_depth_image[:50])
+    with pytest.raises(ValueError, match=message):
+        fit_gaze_regression(*args, key=jax.random.key(0))
+    with pytest.raises(ValueError, match=message):
+        fit_gaze_regression_nn(*args, key=jax.random.key(0))
+
+
+def test_regression_predict_rejects_wrong_feature_count(sessions):
+    s = sessions[0]
+    X = head_pose_features(s)[:60]
+    model = fit_gaze_regression(X, s.gaze_direction_image[:60], s.target_depth_image[:60], key=jax.random.key(0))
+    with pytest.raises(ValueError, match=r"shape \(T, 3\)"):
+        model.predict(np.zeros((4, 6)))
+
+
+# ---------------------------------------------------------------------------
+# Hyperparameter posterior
+
+
+@pytest.fixture(scope="module")
+def posterior_case():
+    """Data drawn from a known GP (RBF, lengthscale 0.8, noise variance 0.04), n = 80."""
+    with jax.enable_x64(True):
+        truth = kernels.RBF(variance=1.0, lengthscale=0.8) + kernels.White(variance=0.04)
+        X = jnp.linspace(-3, 3, 80)[:, None]
+        K = truth(X) + 1e-9 * jnp.eye(80)
+        y = jnp.linalg.cholesky(K) @ jax.random.normal(jax.random.key(2), (80,), jnp.float64)
+        prior = kernels.RBF(variance=1.0, lengthscale=1.0) + kernels.White(variance=0.1)
+        ml = fit(prior, X, y, key=jax.random.key(3))
+        post = sample_hyperparameter_posterior(prior, X, y, key=jax.random.key(4), start=ml, num_warmup=250,
+                                               num_samples=250)
+        X_new = jnp.linspace(-3.5, 3.5, 40)[:, None]
+        return truth, X, y, ml, post, X_new, post.predict(X_new), ml.predict(X_new)
+
+
+def test_posterior_covers_true_hyperparameters_and_reports_inference_data(posterior_case):
+    import arviz as az
+
+    _, _, _, _, post, _, _, _ = posterior_case
+    assert set(post.samples) == {"0.RBF.variance", "0.RBF.lengthscale", "1.White.variance"}
+    for name, true in (("0.RBF.lengthscale", 0.8), ("1.White.variance", 0.04)):
+        lo, hi = np.quantile(post.samples[name], [0.025, 0.975])
+        assert lo < true < hi, (name, lo, hi)
+    summary = az.summary(post.inference_data)
+    assert list(summary.index) == list(post.samples)
+    assert post.divergences <= 5
+    assert summary["ess_bulk"].min() > 30
+
+
+def test_posterior_prediction_is_the_mixture_of_per_draw_predictions(posterior_case, x64):
+    _, X, y, ml, post, X_new, (mean, var), (ml_mean, _) = posterior_case
+    assert np.all(np.isfinite(np.asarray(mean))) and np.all(np.asarray(var) > 0)
+    np.testing.assert_allclose(np.asarray(mean), np.asarray(ml_mean), atol=0.15)
+    # Two hand-made draws: the mixture mean is their average, the variance adds the spread of the means.
+    draws = [kernels.RBF(variance=1.0, lengthscale=0.5) + kernels.White(variance=0.05),
+             kernels.RBF(variance=2.0, lengthscale=1.5) + kernels.White(variance=0.02)]
+    stacked = jax.tree_util.tree_map(lambda a, b: jnp.stack([a, b]) if eqx.is_array(a) else a, *draws)
+    two = post._replace(kernels=stacked)
+    m2, v2 = two.predict(X_new)
+    parts = [predict(k, X, y, X_new) for k in draws]
+    means = np.stack([np.asarray(p[0]) for p in parts])
+    variances = np.stack([np.asarray(p[1]) for p in parts])
+    np.testing.assert_allclose(np.asarray(m2), means.mean(0), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(v2), variances.mean(0) + means.var(0), rtol=1e-9, atol=1e-12)
+    assert np.all(np.asarray(v2) >= variances.min(0))
+
+
+def test_posterior_rejects_bad_arguments(posterior_case):
+    _, X, y, _, _, _, _, _ = posterior_case
+    k = kernels.RBF(variance=1.0, lengthscale=1.0) + kernels.White(variance=0.1)
+    with pytest.raises(ValueError, match="prior_scale"):
+        sample_hyperparameter_posterior(k, X, y, key=jax.random.key(0), prior_scale=0.0)
+    with pytest.raises(ValueError, match="NaN|nan|finite"):
+        sample_hyperparameter_posterior(k, X, y.at[0].set(jnp.nan), key=jax.random.key(0))
+    with pytest.raises(ValueError, match="same kernel structure"):
+        sample_hyperparameter_posterior(k, X, y, key=jax.random.key(0), start=kernels.RBF(variance=1.0, lengthscale=1.0))
