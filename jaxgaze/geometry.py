@@ -79,7 +79,12 @@ def direction_to_yaw_pitch(direction: Float[Array, "... 3"]) -> tuple[Array, Arr
     Returns ``(yaw, pitch)`` with yaw in (−π, π] and pitch in [−π/2, π/2].
     """
     x, y, z = direction[..., 0], direction[..., 1], direction[..., 2]
-    return jnp.arctan2(y, x), jnp.arctan2(z, jnp.hypot(x, y))
+    # At a pole (x² + y² = 0, also when subnormal x, y are flushed to zero) yaw is 0:
+    # XLA's atan2 and hypot give 0/0 = NaN for subnormal inputs (found by hypothesis).
+    r2 = x * x + y * y
+    off_pole = r2 > 0
+    yaw = jnp.arctan2(jnp.where(off_pole, y, 0.0), jnp.where(off_pole, x, 1.0))
+    return yaw, jnp.arctan2(z, jnp.sqrt(r2))
 
 
 def angle_between(a: Float[Array, "... 3"], b: Float[Array, "... 3"]) -> Float[Array, "..."]:

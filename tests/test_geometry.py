@@ -442,3 +442,11 @@ def test_x64_is_restored_after_x64_tests():
     assert not jax.config.jax_enable_x64
     assert jnp.zeros(1).dtype == jnp.float32
     assert unit(jnp.ones(3)).dtype == jnp.float32
+
+
+def test_yaw_pitch_of_a_pole_with_subnormal_components_is_finite():
+    # Hypothesis found this: XLA's atan2 gave 0/0 = NaN for subnormal x, y.
+    v = jnp.asarray([1.40129846e-45, 1.40129846e-45, -1.0], jnp.float32)
+    yaw, pitch = dir_to_yp(v)
+    assert float(yaw) == 0.0 and float(pitch) == pytest.approx(-np.pi / 2)
+    np.testing.assert_allclose(yp_to_dir(yaw, pitch), [0.0, 0.0, -1.0], atol=2e-6)
