@@ -201,6 +201,11 @@ def _as_kernel(other, op: str):
 # Parametrised leaf kernels
 
 
+def _natural_value(name: str) -> property:
+    """Read-only natural value of the positive parameter ``name`` (stored as ``raw_<name>``)."""
+    return property(lambda self: self._natural(name), doc=f"natural value of ``{name}``")
+
+
 class _Parametrised(Kernel):
     """Leaf kernel with positive parameters stored as ``raw_<name>`` fields."""
 
@@ -278,9 +283,7 @@ class Constant(_Parametrised):
         self._set("variance", variance)
         self._set_fixed(fixed)
 
-    @property
-    def variance(self) -> Array:
-        return self._natural("variance")
+    variance = _natural_value("variance")
 
     def evaluate(self, x1, x2):
         return self.variance.astype(jnp.result_type(x1, self.variance))
@@ -305,13 +308,8 @@ class RBF(_Parametrised):
         self._set("lengthscale", lengthscale)
         self._set_fixed(fixed)
 
-    @property
-    def variance(self) -> Array:
-        return self._natural("variance")
-
-    @property
-    def lengthscale(self) -> Array:
-        return self._natural("lengthscale")
+    variance = _natural_value("variance")
+    lengthscale = _natural_value("lengthscale")
 
     def evaluate(self, x1, x2):
         r2 = jnp.sum(((x1 - x2) / self.lengthscale) ** 2)
@@ -347,17 +345,9 @@ class RationalQuadratic(_Parametrised):
         self._set("alpha", alpha)
         self._set_fixed(fixed)
 
-    @property
-    def variance(self) -> Array:
-        return self._natural("variance")
-
-    @property
-    def lengthscale(self) -> Array:
-        return self._natural("lengthscale")
-
-    @property
-    def alpha(self) -> Array:
-        return self._natural("alpha")
+    variance = _natural_value("variance")
+    lengthscale = _natural_value("lengthscale")
+    alpha = _natural_value("alpha")
 
     def evaluate(self, x1, x2):
         r2 = jnp.sum(((x1 - x2) / self.lengthscale) ** 2)
@@ -396,17 +386,9 @@ class ArcSine(_Parametrised):
         self._set("bias_variance", bias_variance)
         self._set_fixed(fixed)
 
-    @property
-    def variance(self) -> Array:
-        return self._natural("variance")
-
-    @property
-    def weight_variance(self) -> Array:
-        return self._natural("weight_variance")
-
-    @property
-    def bias_variance(self) -> Array:
-        return self._natural("bias_variance")
+    variance = _natural_value("variance")
+    weight_variance = _natural_value("weight_variance")
+    bias_variance = _natural_value("bias_variance")
 
     def evaluate(self, x1, x2):
         w = self.weight_variance
@@ -453,13 +435,8 @@ class Linear(_Parametrised):
         self._set("bias_variance", bias_variance)
         self._set_fixed(fixed)
 
-    @property
-    def variance(self) -> Array:
-        return self._natural("variance")
-
-    @property
-    def bias_variance(self) -> Array:
-        return self._natural("bias_variance")
+    variance = _natural_value("variance")
+    bias_variance = _natural_value("bias_variance")
 
     def evaluate(self, x1, x2):
         return self.bias_variance + jnp.sum(self.variance * x1 * x2)
@@ -490,9 +467,7 @@ class White(_Parametrised):
         self._set("variance", variance)
         self._set_fixed(fixed)
 
-    @property
-    def variance(self) -> Array:
-        return self._natural("variance")
+    variance = _natural_value("variance")
 
     @property
     def has_noise(self) -> bool:
