@@ -23,6 +23,10 @@ Both fit the same model, the kernel of the comparison in the brief:
   and ``bias_variance = σ0²`` — fitted by ``jaxgaze.gp.fit`` with its defaults
   (the staged subset strategy; ``key`` fixed) on float64 data.
 
+Two comparisons: ``default`` (both libraries' defaults: our 4 starts on a subset,
+sklearn's single start) and ``matched`` (4 starting points each, sklearn's
+``n_restarts_optimizer=3``, both to a tight optimum, ours ``tol=1e-5``).
+
 Timing: wall time of a whole ``fit`` call (ours after a warm-up call that
 compiles; the first call's extra time is reported as compile time), best of
 ``--repeats``; sklearn and ours alternate. The LMLs are then re-evaluated by
@@ -33,7 +37,8 @@ implementations agree on the objective to ~1e-8, so the LMLs compare.
 
 Usage::
 
-    python benchmarks/bench_gp.py                     # n = 500, 1000, 2000 (~3 min on 2 CPU cores)
+    python benchmarks/bench_gp.py                     # n = 500, 1000, 2000, both comparisons (~8 min on 2 cores)
+    python benchmarks/bench_gp.py --no-matched        # only the defaults (~2 min)
     python benchmarks/bench_gp.py --sizes 500 --repeats 1
     python benchmarks/bench_gp.py --gpu-size 20000    # ours only, float32, on the default JAX device
     python benchmarks/bench_gp.py --threads 1         # single-threaded BLAS/XLA (a busy shared machine)
@@ -56,6 +61,9 @@ def _parse():
     parser.add_argument("--sklearn-max-seconds", type=float, default=60.0, help="no sklearn repeat after a fit this long")
     parser.add_argument("--threads", type=int, default=None, help="limit BLAS and XLA:CPU to this many threads")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--matched", action=argparse.BooleanOptionalAction, default=True,
+                        help="also compare with the same 4 starts each, both to a tight optimum (ours tol=1e-5, "
+                             "sklearn n_restarts_optimizer=3; sklearn takes ~200 s at n=2000)")
     return parser.parse_args()
 
 
@@ -126,17 +134,17 @@ def sklearn_theta_from_ours(model, kernel):
     return k.theta
 
 
-def time_ours(X, y, key):
+def time_ours(X, y, key, tol=None):
     t = time.perf_counter()
-    fitted = gp.fit(our_kernel(), X, y, key=key)
+    fitted = gp.fit(our_kernel(), X, y, key=key, **({} if tol is None else {"tol": tol}))
     jax.block_until_ready(fitted.alpha)
     return time.perf_counter() - t, fitted
 
 
-def time_sklearn(X, y, seed):
+def time_sklearn(X, y, seed, restarts=0):
     from sklearn.gaussian_process import GaussianProcessRegressor
 
-    model = GaussianProcessRegressor(sklearn_kernel(), n_restarts_optimizer=0, random_state=seed)
+    model = GaussianProcessRegressor(sklearn_kernel(), n_restarts_optimizer=restarts, random_state=seed)
     t = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -144,22 +152,31 @@ def time_sklearn(X, y, seed):
     return time.perf_counter() - t, model
 
 
-def compare(n: int, args) -> dict:
+#: the two comparisons: (name, our ``tol`` (None: the default), sklearn's ``n_restarts_optimizer``).
+SETTINGS = {
+    "default": (None, 0),  # both libraries' defaults: our 4 starts on a subset, sklearn's one start
+    "matched": (1e-5, 3),  # the same 4 starting points each, both run to a tight optimum
+}
+
+
+def compare(n: int, args, setting: str = "default") -> dict:
+    tol, restarts = SETTINGS[setting]
     X, y = pose_to_gaze_data(n, args.seed)
     key = jax.random.key(args.seed)
     Xj, yj = jnp.asarray(X, jnp.float64), jnp.asarray(y, jnp.float64)
-    first, _ = time_ours(Xj, yj, key)  # compiles
+    first, _ = time_ours(Xj, yj, key, tol)  # compiles
     ours_t, sk_t = [], []
     fitted = model = None
     for r in range(args.repeats):
-        t, fitted = time_ours(Xj, yj, key)
+        t, fitted = time_ours(Xj, yj, key, tol)
         ours_t.append(t)
         if n <= args.skip_sklearn_above and (not sk_t or max(sk_t) < args.sklearn_max_seconds):
-            t, model = time_sklearn(X, y, args.seed)
+            t, model = time_sklearn(X, y, args.seed, restarts)
             sk_t.append(t)
-        print(f"  n={n} repeat {r}: ours {ours_t[-1]:.2f} s" + (f", sklearn {sk_t[-1]:.2f} s" if sk_t else ""), flush=True)
+        print(f"  n={n} {setting} repeat {r}: ours {ours_t[-1]:.2f} s" + (f", sklearn {sk_t[-1]:.2f} s" if sk_t else ""), flush=True)
     row = {
         "n": n,
+        "setting": setting,
         "ours": min(ours_t),
         "compile": max(first - min(ours_t), 0.0),
         "stages": fitted.stages,
@@ -204,21 +221,23 @@ def main(args) -> None:
     rows = []
     if args.sizes:
         jax.config.update("jax_enable_x64", True)
-        for n in (int(s) for s in args.sizes.split(",") if s):
-            rows.append(compare(n, args))
-            r = rows[-1]
-            print(f"  stages {r['stages']} result {r['result']}\n  ours {r['ours_kernel']}")
-            if "sklearn_kernel" in r:
-                print(f"  sklearn {r['sklearn_kernel']}; sklearn's own LML {r['lml_sklearn_own']:.6f}, "
-                      f"sklearn's LML at our optimum {r['lml_ours_by_sklearn']:.6f}")
+        settings = ("default", "matched") if args.matched else ("default",)
+        for setting in settings:
+            for n in (int(s) for s in args.sizes.split(",") if s):
+                rows.append(compare(n, args, setting))
+                r = rows[-1]
+                print(f"  stages {r['stages']} result {r['result']}\n  ours {r['ours_kernel']}")
+                if "sklearn_kernel" in r:
+                    print(f"  sklearn {r['sklearn_kernel']}; sklearn's own LML {r['lml_sklearn_own']:.6f}, "
+                          f"sklearn's LML at our optimum {r['lml_ours_by_sklearn']:.6f}")
         print()
-        print("| n | ours fit (s) | ours compile (s) | sklearn fit (s) | sklearn / ours | LML ours | LML sklearn | "
+        print("| comparison | n | ours fit (s) | ours compile (s) | sklearn fit (s) | sklearn / ours | LML ours | LML sklearn | "
               "LML ours − sklearn | dtype | stages (points, dtype, steps) |")
-        print("|---|---|---|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
             sk = r.get("sklearn")
             print(
-                f"| {r['n']} | {r['ours']:.2f} | {r['compile']:.1f} | "
+                f"| {r['setting']} | {r['n']} | {r['ours']:.2f} | {r['compile']:.1f} | "
                 + (f"{sk:.2f} | {sk / r['ours']:.1f}× | " if sk else "– | – | ")
                 + f"{r['lml_ours']:.4f} | "
                 + (f"{r['lml_sklearn']:.4f} | {r['lml_ours'] - r['lml_sklearn']:+.4f} | " if sk else "– | – | ")

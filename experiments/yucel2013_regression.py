@@ -8,7 +8,7 @@ under-rotating against gaze, tracker noise 0.02–0.04 rad). The regressors
 (pitch, yaw, roll) of the training sessions (at most ``--train-frames`` frames,
 thinned evenly) by GPR (type-II ML) and by the NN baseline, for every
 self-referencing split (another session of the same person) and every
-cross-referencing split (train on one person, test on the others)
+cross-referencing split (train on the other people, test on one)
 (:func:`jaxgaze.gp.evaluate.evaluate_regression`).
 
 Printed: Table I's layout (Q1, Q2 per method and split, plus pooled scores, the

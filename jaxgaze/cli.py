@@ -1,4 +1,4 @@
-"""Command-line interface: ``jaxgaze demo``, ``concurrences``, ``calibrate`` and ``bias``.
+"""Command-line interface: ``jaxgaze demo``, ``concurrences``, ``calibrate``, ``bias``, ``attend`` and ``fit-gaze``.
 
 ``jaxgaze concurrences INPUT.csv --out OUT.csv`` finds the gaze concurrences
 (Park et al. 2012) of every frame of a recording of primary gaze rays;
@@ -10,9 +10,13 @@ session in which A looks at B's camera, and ``jaxgaze concurrences POSES.csv
 calibrations. ``jaxgaze bias GAZE.csv --speech SEGMENTS.rttm --out bias.json``
 estimates a person's gaze bias from the frames where their conversation
 partner speaks (Siegfried, Odobez et al. 2017) and writes per-frame
-looking-at probabilities. Errors in the input are reported as one line on stderr,
-``jaxgaze: error: <what> (<file>:<line>)``, with exit status 2, and never
-leave a partial output file behind.
+looking-at probabilities. ``jaxgaze attend VIDEO --model gp.json --output
+attend.csv`` finds the object a person attends to in each window of a video
+from their head pose (Yücel et al. 2013), with a model written by ``jaxgaze
+fit-gaze --output gp.json`` (fitted on simulated table-top sessions). Errors
+in the input are reported as one line on stderr, ``jaxgaze: error: <what>
+(<file>:<line>)``, with exit status 2, and never leave a partial output file
+behind.
 """
 
 from __future__ import annotations
@@ -26,16 +30,15 @@ import logging
 import math
 import os
 import sys
-import tempfile
 import time
 import typing
 import warnings
 
-from jaxgaze.textfiles import header_problem
+from jaxgaze.textfiles import atomic_path, header_problem
 
 __all__ = ["main", "read_rays_csv", "read_calibration_json", "read_camera_poses_csv", "read_gaze_csv",
            "read_targets_csv", "CSV_COLUMNS", "CAMERA_POSE_COLUMNS", "OUTPUT_COLUMNS", "CALIBRATION_KEYS",
-           "GAZE_COLUMNS", "TARGET_COLUMNS", "BIAS_FRAME_COLUMNS"]
+           "GAZE_COLUMNS", "TARGET_COLUMNS", "BIAS_FRAME_COLUMNS", "ATTEND_COLUMNS"]
 
 #: Required input columns (a ``bandwidth`` column is optional).
 CSV_COLUMNS = ("frame", "person", "ox", "oy", "oz", "dx", "dy", "dz")
@@ -53,6 +56,10 @@ OUTPUT_COLUMNS = ("frame", "mode", "x", "y", "z", "var_x", "var_y", "var_z", "nu
 GAZE_COLUMNS = ("frame", "yaw", "tilt", "qw", "qx", "qy", "qz", "ex", "ey", "ez")
 #: Target position columns (metres), in GAZE.csv or, with ``frame``, in a ``--targets`` CSV.
 TARGET_COLUMNS = ("tx", "ty", "tz")
+#: The per-window table of ``attend``.
+ATTEND_COLUMNS = ("window", "start_frame", "start_time", "valid", "pitch", "yaw", "roll", "direction", "depth_y",
+                  "head_x", "head_y", "target_x", "target_y", "attended_x", "attended_y", "region_x_min",
+                  "region_y_min", "region_x_max", "region_y_max", "probability", "reason")
 #: The per-frame table of ``bias`` (JSON ``"frames"``, one list per column, and ``--per-frame`` CSV).
 BIAS_FRAME_COLUMNS = ("frame", "time", "partner_speaking", "head_target_angle_deg", "selected",
                       "error_uncorrected_deg", "error_deg", "looking", "probability")
@@ -154,6 +161,41 @@ per reason) and "frames", the per-frame table with one list per column:
   frame is looking; otherwise looking as 0/1).
 Reader warnings (dropped frames, merged speech segments) go to stderr as
 'jaxgaze: warning: ...' lines and do not fail the command.
+"""
+
+
+_ATTEND_DESCRIPTION = """\
+The attended object per window of frames of a video (Yücel et al. 2013,
+T-CYB Sec. IV-VI): the head is tracked with a cylindrical head model (the
+first frame must show the face frontally, looking at the camera), the gaze
+regression of --model predicts from the head pose the image angle of the gaze
+(f1) and the image row of the target (f2) with their variances, each window of
+--window frames pools the target points, and bottom-up saliency (--method)
+around them picks the attended location, with a posterior probability.
+
+The model's f2 is a row of the images it was trained on (metadata image_size);
+for a video of another size it is scaled by the ratio of the image heights,
+and so is the default focal length.
+
+OUT.csv has one row per window (a trailing incomplete window is dropped):
+  window, start_frame   window index and its first frame (from 0)
+  start_time            start_frame / fps, seconds (empty when no fps is known)
+  valid                 1 where a location was attended, else 0 (see reason)
+  pitch, yaw, roll      pooled head pose, radians, relative to the first frame's
+                        eye-contact head frame (yaw > 0 to the person's left,
+                        pitch > 0 up, roll > 0 left ear up)
+  direction             pooled f1, radians (atan2(dy, dx) in the image: +pi/2 down)
+  depth_y               pooled f2, image row, px
+  head_x, head_y        pooled head centre in the image, px
+  target_x, target_y    pooled regression target point, px
+  attended_x, attended_y  the attended location, px
+  region_x_min, region_y_min, region_x_max, region_y_max
+                        the salient region there, px
+  probability           the attended location's posterior probability
+  reason                why a window is not valid: "tracker lost" or "no location
+                        stands out" (empty when valid)
+Image coordinates: x right, y down, origin at the top-left pixel's outer corner.
+Missing values are empty cells.
 """
 
 
@@ -296,6 +338,76 @@ def build_parser() -> argparse.ArgumentParser:
     bias.add_argument("-q", "--quiet", action="store_true",
                       help="no progress bar and no summary line on stderr (warnings and errors still go there)")
     bias.set_defaults(func=_cmd_bias)
+
+    attend = sub.add_parser(
+        "attend",
+        help="the object a person attends to in a video, per window of frames, from their head pose (Yücel et al. "
+             "2013)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=_ATTEND_DESCRIPTION,
+    )
+    attend.add_argument("video", metavar="VIDEO",
+                        help="a video file OpenCV can read, or a folder of frames (.png, .jpg, ...; natural order)")
+    attend.add_argument("--model", required=True, metavar="GP.json",
+                        help="gaze regression written by 'jaxgaze fit-gaze' or jaxgaze.gp.io.save_gaze_regression")
+    attend.add_argument("--output", "--out", dest="out", default="attend.csv", metavar="OUT.csv",
+                        help="output CSV, one row per window (default attend.csv; replaced only on success)")
+    attend.add_argument("--method", choices=("itti", "spectral_residual"), default="itti",
+                        help="bottom-up saliency: itti (Itti-Koch-Niebur) or spectral_residual (Hou & Zhang) "
+                             "(default itti)")
+    attend.add_argument("--window", type=_int_at_least(1), default=None, metavar="N",
+                        help="frames pooled per window (default: the model's 'window', else 4; T-CYB: 4 at 10 fps)")
+    attend.add_argument("--focal-px", type=_positive_float, default=None, metavar="F",
+                        help="focal length of the video's camera in pixels (default: the model's 'focal_px', scaled "
+                             "to the video's image size)")
+    attend.add_argument("--fps", type=_positive_float, default=None, metavar="FPS",
+                        help="frame rate for the start_time column (default: the video's, else the model's)")
+    attend.add_argument("--initial-box", type=float, nargs=4, default=None, metavar=("X", "Y", "W", "H"),
+                        help="the face box in the first frame, pixels (x right, y down from the top-left corner); "
+                             "default: detected")
+    attend.add_argument("--max-frames", type=_int_at_least(1), default=None, metavar="N",
+                        help="read at most N frames")
+    attend.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="show progress bars (default: when stderr is a terminal)")
+    attend.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bar and no summary line on stderr")
+    attend.set_defaults(func=_cmd_attend)
+
+    fit_gaze = sub.add_parser(
+        "fit-gaze",
+        help="fit the gaze regression (f1 direction, f2 depth from head pose) on simulated table-top sessions",
+        description="Simulate table-top sessions (jaxgaze.simulate_tabletop: PEOPLE experimenters, SESSIONS "
+                    "sessions each, one table and camera), fit the gaze regression of Yücel et al. 2013 on their "
+                    "head poses (pitch, yaw, roll, radians, relative to the eye-contact head frame) and write it "
+                    "to OUTPUT for 'jaxgaze attend', with metadata focal_px, fps, window and image_size. "
+                    "--demo-video also renders a session of one more experimenter (not in the training data) as "
+                    "a video to try 'jaxgaze attend' on.",
+    )
+    fit_gaze.add_argument("--output", "--out", dest="out", required=True, metavar="GP.json",
+                          help="model file (replaced only on success)")
+    fit_gaze.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default 0)")
+    fit_gaze.add_argument("--method", choices=("gp", "nn"), default="gp",
+                          help="gp: the paper's two Gaussian processes; nn: the CogSci neural-network baseline "
+                               "(default gp)")
+    fit_gaze.add_argument("--people", type=_int_at_least(1), default=4, metavar="N",
+                          help="simulated experimenters (default 4)")
+    fit_gaze.add_argument("--sessions", type=_int_at_least(1), default=2, metavar="N",
+                          help="sessions per experimenter (default 2)")
+    fit_gaze.add_argument("--duration", type=_positive_float, default=30.0, metavar="SECONDS",
+                          help="length of a session (default 30)")
+    fit_gaze.add_argument("--fps", type=_positive_float, default=10.0, metavar="FPS",
+                          help="frame rate of the sessions (default 10, as T-CYB)")
+    fit_gaze.add_argument("--window", type=_int_at_least(1), default=4, metavar="N",
+                          help="pooling window stored in the model for 'attend' (default 4)")
+    fit_gaze.add_argument("--max-frames", type=_int_at_least(2), default=600, metavar="N",
+                          help="thin the training frames evenly to at most N (default 600; a GP costs O(N^3))")
+    fit_gaze.add_argument("--demo-video", default=None, metavar="VIDEO",
+                          help="also render a held-out session as a video (.mp4, .avi or .mkv): 640 x 480 (the "
+                               "simulator's camera at twice its 320 x 240), 10 lead-in frames of eye contact first")
+    fit_gaze.add_argument("--demo-frames", type=_int_at_least(1), default=100, metavar="N",
+                          help="session frames in --demo-video after the lead-in, at most a session's (default 100)")
+    fit_gaze.add_argument("-q", "--quiet", action="store_true", help="no summary line on stderr")
+    fit_gaze.set_defaults(func=_cmd_fit_gaze)
     return parser
 
 
@@ -775,33 +887,12 @@ def _cmd_concurrences(args) -> int:
 
 @contextlib.contextmanager
 def _atomic_path(path: str, what: str = "output"):
-    """Yield a temporary path next to ``path`` (same permissions) and ``os.replace`` it onto
-    ``path`` only on success; on failure delete it and leave ``path`` untouched."""
-    target = os.path.abspath(path)
+    """:func:`jaxgaze.textfiles.atomic_path`, with an ``OSError`` as a one-line :class:`CLIError`."""
     try:
-        fd, tmp = tempfile.mkstemp(dir=os.path.dirname(target), prefix=f".{os.path.basename(target)}.",
-                                   suffix=".tmp")
-        os.close(fd)
+        with atomic_path(path) as tmp:
+            yield tmp
     except OSError as error:
         raise CLIError(f"cannot write {what}: {error.strerror or error}", path) from None
-    try:
-        try:
-            file_mode = os.stat(target).st_mode & 0o7777
-        except OSError:
-            umask = os.umask(0)
-            os.umask(umask)
-            file_mode = 0o666 & ~umask
-        os.chmod(tmp, file_mode)
-        yield tmp
-        os.replace(tmp, target)
-    except OSError as error:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise CLIError(f"cannot write {what}: {error.strerror or error}", path) from None
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
 
 
 def _finite_extreme(values, pick):
@@ -1513,6 +1604,270 @@ def _cmd_bias(args) -> int:
               f"({method}, {selection.num_selected} of {selection.num_candidates} candidate frames); looking at "
               f"'{partner}' in {int(looking.sum())} of {len(gaze.frame)} frames; written to {args.out}"
               + (f" and {args.per_frame}" if args.per_frame else ""), file=sys.stderr)
+    return 0
+
+
+# ---------------------------------------------------------------------------
+# attend and fit-gaze (Yücel et al. 2013)
+
+
+class _VideoRegression:
+    """A loaded gaze regression as :func:`~jaxgaze.vision.attend.attend_frames` uses it.
+
+    ``predict`` runs in float64 (the model's Cholesky factor is rebuilt in float64 when it
+    is loaded, so a float64 fit stays positive definite; the tracker runs in float32, so
+    the command does not switch x64 on globally) and scales the depth row ``f2`` (and its
+    variance) from the model's training images to the video's by ``depth_scale``.
+    """
+
+    def __init__(self, regression, depth_scale: float):
+        self.regression = regression
+        self.depth_scale = float(depth_scale)
+
+    @property
+    def features(self):
+        features = getattr(self.regression, "features", None)
+        if features is not None:
+            return features
+        import numpy as np
+
+        from jaxgaze.gp.regression import Scaling
+
+        width = self.regression.direction_net.params.W1.shape[0]  # the NN baseline
+        return Scaling(np.zeros(width), np.ones(width))
+
+    def predict(self, features):
+        import jax
+        import numpy as np
+
+        from jaxgaze.gp.regression import GazePrediction
+
+        with jax.enable_x64(True):
+            pred = self.regression.predict(np.asarray(features, np.float64))
+            d, y = np.asarray(pred.direction, np.float64), np.asarray(pred.depth, np.float64)
+            vd = None if pred.direction_variance is None else np.asarray(pred.direction_variance, np.float64)
+            vy = None if pred.depth_variance is None else np.asarray(pred.depth_variance, np.float64)
+        k = self.depth_scale
+        return GazePrediction(d, y * k, vd, None if vy is None else vy * k * k)
+
+
+def _metadata_number(metadata: dict, key: str, path: str, integer: bool = False):
+    """``metadata[key]`` checked as a positive number (or integer), or ``None`` when absent."""
+    if metadata.get(key) is None:
+        return None
+    value = metadata[key]
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+    if integer:
+        ok = ok and float(value).is_integer()
+    if not ok:
+        kind = "positive integer" if integer else "positive number"
+        raise CLIError(f"model metadata '{key}' must be a {kind}, got {json.dumps(value)}", path)
+    return int(value) if integer else float(value)
+
+
+def _metadata_image_size(metadata: dict, path: str):
+    value = metadata.get("image_size")
+    if value is None:
+        return None
+    if not (isinstance(value, list) and len(value) == 2
+            and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value)):
+        raise CLIError(f"model metadata 'image_size' must be [width, height] in pixels, got {json.dumps(value)}", path)
+    return int(value[0]), int(value[1])
+
+
+def _load_model(path: str):
+    """``(regression, metadata)`` from a model file, loaded in float64; errors as :class:`CLIError`."""
+    import jax
+
+    from jaxgaze.gp.io import ModelFileError, load_gaze_regression
+
+    try:
+        with jax.enable_x64(True):
+            return load_gaze_regression(path, with_metadata=True)
+    except ModelFileError as error:
+        raise _error_from_file_error(error) from None
+
+
+def _cell(value, digits: int = 6) -> str:
+    """A CSV cell: empty for NaN, else the number rounded to ``digits`` decimals (shortest form)."""
+    value = float(value)
+    return "" if not math.isfinite(value) else repr(round(value, digits))
+
+
+def write_attend_csv(handle, windows, fps) -> int:
+    """Write :data:`ATTEND_COLUMNS`, one row per window of an ``AttentionWindows``; returns the rows."""
+    writer = csv.writer(handle, lineterminator="\n")
+    writer.writerow(ATTEND_COLUMNS)
+    for i in range(len(windows.start_frame)):
+        start = int(windows.start_frame[i])
+        writer.writerow([
+            i, start, "" if fps is None else _cell(start / fps),
+            int(bool(windows.valid[i])),
+            *(_cell(v) for v in windows.pose[i]),
+            _cell(windows.direction[i]), _cell(windows.depth_y[i], 3),
+            *(_cell(v, 3) for v in windows.head_xy[i]),
+            *(_cell(v, 3) for v in windows.target_xy[i]),
+            *(_cell(v, 3) for v in windows.attended_xy[i]),
+            *(_cell(v, 3) for v in windows.region_box[i]),
+            _cell(windows.probability[i]),
+            windows.reason[i],
+        ])
+    return len(windows.start_frame)
+
+
+class _VideoFrames:
+    """The frames of VIDEO, read lazily each time it is iterated; ``len`` when the count is known."""
+
+    def __init__(self, path: str, max_frames, count):
+        self.path, self.max_frames, self.count = path, max_frames, count
+
+    def __iter__(self):
+        from jaxgaze.vision.video import iter_frames
+
+        return iter_frames(self.path, max_frames=self.max_frames)
+
+
+class _CountedVideoFrames(_VideoFrames):
+    def __len__(self) -> int:
+        return self.count
+
+
+def _cmd_attend(args) -> int:
+    from jaxgaze.vision.attend import attend_frames
+    from jaxgaze.vision.video import VideoFileError, frame_count, iter_frames, video_fps
+
+    progress = (not args.quiet and args.progress) if args.progress is not None else _progress(args)
+    _check_output_directory(args.out)
+    try:
+        first = next(iter(iter_frames(args.video, max_frames=1)))
+        count = frame_count(args.video)
+        fps_video = video_fps(args.video)
+    except VideoFileError as error:
+        raise _error_from_file_error(error) from None
+    height, width = first.shape[:2]
+    regression, metadata = _load_model(args.model)
+
+    size = _metadata_image_size(metadata, args.model)
+    scale = 1.0 if size is None else height / size[1]
+    notes = []
+    if size is not None and abs(width / size[0] - scale) > 0.01 * scale:
+        notes.append(f"the video is {width}x{height} px but the model was trained on {size[0]}x{size[1]} px images "
+                     f"(another aspect ratio): its depth rows are scaled by the heights, x {scale:.4g}")
+    if args.focal_px is not None:
+        focal = args.focal_px
+    else:
+        model_focal = _metadata_number(metadata, "focal_px", args.model)
+        if model_focal is None:
+            raise CLIError("no focal length: pass --focal-px (the model file has no metadata 'focal_px')", args.model)
+        focal = model_focal * scale
+    window = args.window or _metadata_number(metadata, "window", args.model, integer=True) or 4
+    fps = args.fps or fps_video or _metadata_number(metadata, "fps", args.model)
+    if args.max_frames is not None and count is not None:
+        count = min(count, args.max_frames)
+    frames = (_CountedVideoFrames if count else _VideoFrames)(args.video, args.max_frames, count)
+    if count is not None and count < window:
+        raise CLIError(f"the video has {count} frame(s), fewer than one window of {window}", args.video)
+    for note in notes:
+        print(f"jaxgaze: warning: {note}", file=sys.stderr)
+
+    try:
+        windows = attend_frames(frames, _VideoRegression(regression, scale), focal_px=focal, window=window,
+                                method=args.method, initial_box=args.initial_box, progress=progress)
+    except VideoFileError as error:
+        raise _error_from_file_error(error) from None
+    except ValueError as error:
+        raise CLIError(str(error), args.video) from None
+
+    with _atomic_output(args.out) as handle:
+        rows = write_attend_csv(handle, windows, fps)
+    if not args.quiet:
+        import numpy as np
+
+        valid = np.asarray(windows.valid, bool)
+        num_frames = rows * window
+        timing = f", {num_frames / fps:.1f} s at {fps:g} fps" if fps else ""
+        mean_p = f"; mean probability {float(np.mean(windows.probability[valid])):.2f}" if valid.any() else ""
+        scaled = (f"; model image rows and focal length scaled x {scale:g} to the {width}x{height} px video"
+                  if scale != 1.0 else "")
+        print(f"jaxgaze: {int(valid.sum())} of {rows} window(s) of {window} frames attended ({num_frames} "
+              f"frames{timing}, focal length {focal:.1f} px, {args.method} saliency){mean_p}{scaled}; written to "
+              f"{args.out}", file=sys.stderr)
+    return 0
+
+
+def _cmd_fit_gaze(args) -> int:
+    import jax
+
+    from jaxgaze.gp.evaluate import training_data
+    from jaxgaze.gp.io import save_gaze_regression
+    from jaxgaze.gp.regression import fit_gaze_regression, fit_gaze_regression_nn
+    from jaxgaze.simulate_tabletop import IMAGE_HEIGHT, IMAGE_WIDTH, simulate_tabletop_sessions
+
+    _check_output_directory(args.out, "model")
+    if args.demo_video is not None:
+        from jaxgaze.vision.video import VIDEO_CODECS
+
+        demo_ext = os.path.splitext(args.demo_video)[1].lower()
+        if demo_ext not in VIDEO_CODECS:
+            raise CLIError(f"--demo-video must end in {', '.join(VIDEO_CODECS)}, got {demo_ext or 'no extension'!r}",
+                           args.demo_video)
+        _check_output_directory(args.demo_video, "demo video")
+        if os.path.abspath(args.demo_video) == os.path.abspath(args.out):
+            raise CLIError("--demo-video and --output must be different files", args.out)
+    if round(args.duration * args.fps) < 2:
+        raise CLIError(f"--duration {args.duration:g} s at --fps {args.fps:g} gives fewer than 2 frames per session")
+    clock = time.perf_counter()
+    key_sim, key_fit, key_render = jax.random.split(jax.random.key(args.seed), 3)
+    demo_people = 1 if args.demo_video is not None else 0  # one more experimenter, held out
+    try:
+        sessions = simulate_tabletop_sessions(key_sim, num_people=args.people + demo_people,
+                                              sessions_per_person=args.sessions, duration_s=args.duration,
+                                              fps=args.fps)
+    except ValueError as error:
+        raise CLIError(str(error)) from None
+    num_train = args.people * args.sessions
+    X, f1, f2 = training_data(sessions, range(num_train), args.max_frames)
+    fitter = fit_gaze_regression if args.method == "gp" else fit_gaze_regression_nn
+    model = fitter(X, f1, f2, key=key_fit)
+    converged = bool(model.converged) if args.method == "gp" else True
+    metadata = {
+        "focal_px": float(sessions[0].focal_px),
+        "image_size": [IMAGE_WIDTH, IMAGE_HEIGHT],
+        "fps": float(args.fps),
+        "window": int(args.window),
+        "features": ["pitch", "yaw", "roll"],
+        "units": "features: head pose (pitch, yaw, roll) in radians relative to the eye-contact (frontal) head "
+                 "frame; direction f1: image angle atan2(dy, dx) in radians; depth f2: image row in pixels of "
+                 "image_size images with focal length focal_px",
+        "source": "jaxgaze fit-gaze: simulated table-top sessions (jaxgaze.simulate_tabletop)",
+        "method": args.method,
+        "seed": int(args.seed),
+        "people": int(args.people),
+        "sessions_per_person": int(args.sessions),
+        "duration_s": float(args.duration),
+        "num_training_frames": int(len(X)),
+        "converged": converged,
+    }
+    with _atomic_path(args.out, "model") as tmp:
+        save_gaze_regression(tmp, model, metadata=metadata)
+        if args.demo_video is not None:
+            from jaxgaze.vision.video import render_tabletop_video, write_video
+
+            demo = sessions[num_train]
+            frames, _ = render_tabletop_video(demo, key=key_render, num_frames=args.demo_frames)
+            try:
+                write_video(args.demo_video, frames, demo.fps)  # atomic itself
+            except (OSError, ValueError) as error:
+                raise CLIError(f"cannot write demo video: {error}", args.demo_video) from None
+    if not args.quiet:
+        demo_text = ""
+        if args.demo_video is not None:
+            demo_text = (f"; demo video {args.demo_video}: {len(frames)} frames at {demo.fps:g} fps, "
+                         f"{frames[0].shape[1]}x{frames[0].shape[0]} px (10 lead-in frames of eye contact), focal "
+                         f"length {2 * demo.focal_px:.1f} px")
+        state = "" if converged else " (the fit did not converge: see the model's GP results)"
+        print(f"jaxgaze: {args.method} gaze regression fitted on {len(X)} frames of {num_train} simulated session(s)"
+              f"{state} in {time.perf_counter() - clock:.1f} s; written to {args.out}{demo_text}", file=sys.stderr)
     return 0
 
 

@@ -1,4 +1,5 @@
-"""Reading the text inputs (pose files, OpenFace CSV, speech segments): one error type, one reader.
+"""Reading the text inputs (pose files, OpenFace CSV, speech segments): one error type, one reader;
+and :func:`atomic_path`, the one way jaxgaze writes an output file.
 
 Every reader reports a malformed file as a ``ValueError`` whose message starts with
 ``path, line N:`` (or ``path:`` when no line applies), so that the command line can
@@ -7,11 +8,13 @@ print it as one line.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import tempfile
 from typing import Optional
 
-__all__ = ["InputFileError", "read_lines", "parse_number", "header_problem"]
+__all__ = ["InputFileError", "atomic_path", "read_text", "read_lines", "parse_number", "header_problem"]
 
 
 class InputFileError(ValueError):
@@ -24,19 +27,56 @@ class InputFileError(ValueError):
         super().__init__(f"{where}: {message}")
 
 
-def read_lines(path, error: type[InputFileError] = InputFileError) -> list[str]:
-    """The lines of a UTF-8 text file (a BOM is dropped); ``error`` for a missing file or bad bytes."""
+def read_text(path, error: type[InputFileError] = InputFileError, what: str = "file") -> str:
+    """The contents of a UTF-8 text file (a BOM is dropped); ``error`` for a missing or
+    unreadable file or bad bytes, naming the file as ``what`` ("model file not found")."""
     try:
         with open(path, "rb") as handle:
             data = handle.read()
     except FileNotFoundError:
-        raise error("file not found", path) from None
+        raise error(f"{what} not found", path) from None
     except IsADirectoryError:
-        raise error("is a directory, not a file", path) from None
+        raise error(f"is a directory, not a {what}", path) from None
+    except OSError as exc:
+        raise error(f"cannot read the {what}: {exc.strerror or exc}", path) from None
     try:
-        return data.decode("utf-8-sig").splitlines()
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise error(f"not UTF-8 text: {exc.reason}", path, data[: exc.start].count(b"\n") + 1) from None
+
+
+def read_lines(path, error: type[InputFileError] = InputFileError) -> list[str]:
+    """The lines of a UTF-8 text file (a BOM is dropped); ``error`` for a missing file or bad bytes."""
+    return read_text(path, error).splitlines()
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yield a temporary path next to ``path`` and ``os.replace`` it onto ``path`` only on success.
+
+    The temporary file keeps ``path``'s extension (writers such as OpenCV's pick the
+    format from it) and gets the permissions an existing ``path`` has (else the
+    umask's). On any failure it is deleted and an existing ``path`` is left untouched,
+    so no half-written output is ever seen. ``OSError`` propagates.
+    """
+    target = os.path.abspath(os.fspath(path))
+    stem, ext = os.path.splitext(os.path.basename(target))
+    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(target), prefix=f".{stem}.", suffix=f".tmp{ext}")
+    os.close(fd)
+    try:
+        try:
+            file_mode = os.stat(target).st_mode & 0o7777
+        except OSError:
+            umask = os.umask(0)
+            os.umask(umask)
+            file_mode = 0o666 & ~umask
+        os.chmod(tmp, file_mode)
+        yield tmp
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
 
 
 def parse_number(text: str, what: str, path, line: int, error: type[InputFileError] = InputFileError) -> float:

@@ -44,8 +44,8 @@ def test_gpr_q2_beats_raw_head_pose(scores, split):
 def test_gpr_90_percent_intervals_cover_85_to_95_percent_of_held_out_sessions(scores):
     # Self-referencing: every held-out session of a person the GP was trained on.
     assert 0.85 <= scores["self", "gpr"].coverage_90 <= 0.95
-    # Other people: their idiosyncrasies are not in the model, so coverage drops a little (0.82-0.85 measured).
-    assert 0.75 <= scores["cross", "gpr"].coverage_90 <= 0.95
+    # Cross-referencing: a person the GP never saw, trained on the three others.
+    assert 0.85 <= scores["cross", "gpr"].coverage_90 <= 0.95
 
 
 def test_nn_baseline_also_beats_head_pose_but_has_no_intervals(scores):

@@ -376,9 +376,9 @@ def test_cross_referencing_splits_from_sessions():
     sessions = simulate_tabletop_sessions(jax.random.key(0), num_people=3, sessions_per_person=2, duration_s=2.0)
     splits = tg.cross_referencing_splits(sessions)
     assert len(splits) == 3
-    for p, (train, test) in enumerate(splits):
-        assert {sessions[i].person for i in train} == {p}
-        assert p not in {sessions[i].person for i in test}
+    for p, (train, test) in enumerate(splits):  # leave person p out
+        assert {sessions[i].person for i in test} == {p}
+        assert {sessions[i].person for i in train} == {0, 1, 2} - {p}
         assert set(train).isdisjoint(test) and sorted(train + test) == list(range(6))
     assert tg.self_referencing_splits(sessions)[0] == ([0], [1])
     with pytest.raises(ValueError, match="at least 2 people"):

@@ -232,6 +232,16 @@ def test_small_known_yaw_is_recovered():
     np.testing.assert_allclose(track.pose[1] / DEG, [0.0, 3.0, 0.0], atol=0.2)
 
 
+def test_tracker_runs_in_float64_too(x64):
+    # Under jax_enable_x64 the whole pose solve is float64 (optimistix's damping term follows
+    # the default float, so a float32 solve there failed on mismatched structures).
+    Rf = frontal_rotation(T0)
+    frames = [_render(np.array([0.0, k * 2 * DEG, 0.0]), T0, Rf)[0] for k in range(3)]
+    track = track_head(frames, initial_box=_mask_box(_render(np.zeros(3), T0, Rf)[1]), focal_px=F)
+    np.testing.assert_allclose(track.pose[:, 1] / DEG, [0.0, 2.0, 4.0], atol=0.2)
+    assert np.all(track.converged)
+
+
 def test_initial_box_sets_depth_and_centre():
     box = (110.0, 40.0, projected_width_px(CylinderHead(), 0.5, F), 160.0)
     position = initial_head_position(box, focal_px=F, image_size=(W, H))

@@ -11,6 +11,7 @@
 * :mod:`jaxgaze.gp.regression` — ``f1`` (gaze direction) and ``f2`` (target depth) from head pose.
 * :mod:`jaxgaze.gp.target` — target points, pooling, Q1/Q2 (T-CYB eq. 14–15, CogSci), CMC, splits.
 * :mod:`jaxgaze.gp.evaluate` — Table I and the CogSci table on simulated sessions.
+* :mod:`jaxgaze.gp.io` — fitted regressions to and from JSON model files (``gp.json``).
 """
 
 from jaxgaze.gp.exact import (
@@ -55,6 +56,7 @@ from jaxgaze.gp.target import (
     target_point,
 )
 from jaxgaze.gp.evaluate import RegressionScores, evaluate_regression, evaluate_split
+from jaxgaze.gp.io import ModelFileError, load_gaze_regression, save_gaze_regression
 
 __all__ = [
     "Kernel",
@@ -97,4 +99,7 @@ __all__ = [
     "RegressionScores",
     "evaluate_regression",
     "evaluate_split",
+    "ModelFileError",
+    "load_gaze_regression",
+    "save_gaze_regression",
 ]

@@ -69,7 +69,9 @@ class RegressionScores(NamedTuple):
     head_angular_errors: np.ndarray
 
 
-def _training_data(sessions, indices, max_frames):
+def training_data(sessions, indices, max_frames):
+    """Head poses ``X (T, 3)`` and targets ``f1``, ``f2`` of the sessions ``indices``, thinned
+    evenly to at most ``max_frames`` frames (``None``: all)."""
     X = np.concatenate([np.asarray(head_pose_features(sessions[i])) for i in indices])
     f1 = np.concatenate([np.asarray(sessions[i].gaze_direction_image) for i in indices])
     f2 = np.concatenate([np.asarray(sessions[i].target_depth_image) for i in indices])
@@ -79,7 +81,8 @@ def _training_data(sessions, indices, max_frames):
     return X, f1, f2
 
 
-def _fit(method, X, f1, f2, key):
+def fit_regressor(method, X, f1, f2, key):
+    """``fit_gaze_regression`` (``method="gpr"``) or ``fit_gaze_regression_nn`` (``"nn"``)."""
     if method == "gpr":
         return fit_gaze_regression(X, f1, f2, key=key)
     if method == "nn":
@@ -111,7 +114,7 @@ def evaluate_split(
     """
     if not train or not test:
         raise ValueError("train and test must each name at least one session")
-    model = _fit(method, *_training_data(sessions, train, max_train_frames), key)
+    model = fit_regressor(method, *training_data(sessions, train, max_train_frames), key)
     per_session = {name: [] for name in ("q1", "q2", "q1p", "q2p", "q2h")}
     errors, head_errors, inside = [], [], []
     group_hits = {g: np.zeros(3) for g in GROUPS}

@@ -2,9 +2,80 @@
 ``../shared/METHODS.md`` §2): face detection, cylindrical head-model tracking,
 bottom-up saliency and the attended object.
 
+* :mod:`~jaxgaze.vision.images` — checks and conversions (RGB, uint8 or [0, 1] floats);
+* :mod:`~jaxgaze.vision.faces` — Viola–Jones faces and eyes (OpenCV's Haar cascades);
+* :mod:`~jaxgaze.vision.head_model`, :mod:`~jaxgaze.vision.tracker` — the elliptic
+  cylinder head, its renderer, and the 6-DoF Lucas–Kanade tracker (optimistix);
+* :mod:`~jaxgaze.vision.saliency_maps` — Itti–Koch–Niebur and spectral-residual maps,
+  Gaussian masks, winner-take-all with inhibition of return, salient regions;
+* :mod:`~jaxgaze.vision.attend` — the posterior over attended locations and objects,
+  per window of a session or a video;
+* :mod:`~jaxgaze.vision.render`, :mod:`~jaxgaze.vision.video` — rendered table-top
+  scenes and videos with ground truth, and video input/output.
+
 Image conventions are in :mod:`jaxgaze.vision.images` and ``docs/conventions.md``.
 """
 
+from jaxgaze.vision.attend import (
+    Attention,
+    AttentionWindows,
+    SessionAttention,
+    attend_frames,
+    attend_session,
+    attend_window,
+    evaluate_attention,
+    target_point_covariance,
+)
+from jaxgaze.vision.faces import EyeBox, FaceBox, detect_eyes, detect_faces
+from jaxgaze.vision.head_model import CylinderHead, render_head
 from jaxgaze.vision.images import check_image, to_float, to_gray_float, to_gray_uint8, to_rgb_float
+from jaxgaze.vision.render import CONDITIONS, RenderedScene, composite, render_tabletop_scene
+from jaxgaze.vision.saliency_maps import (
+    SALIENCY_METHODS,
+    Fixations,
+    gaussian_mask,
+    salient_region,
+    saliency,
+    winner_take_all,
+)
+from jaxgaze.vision.tracker import HeadTrack, track_head
+from jaxgaze.vision.video import VideoFileError, read_frames, render_tabletop_video, video_fps, write_video
 
-__all__ = ["check_image", "to_float", "to_gray_float", "to_gray_uint8", "to_rgb_float"]
+__all__ = [
+    "Attention",
+    "AttentionWindows",
+    "SessionAttention",
+    "attend_frames",
+    "attend_session",
+    "attend_window",
+    "evaluate_attention",
+    "target_point_covariance",
+    "EyeBox",
+    "FaceBox",
+    "detect_eyes",
+    "detect_faces",
+    "CylinderHead",
+    "render_head",
+    "check_image",
+    "to_float",
+    "to_gray_float",
+    "to_gray_uint8",
+    "to_rgb_float",
+    "CONDITIONS",
+    "RenderedScene",
+    "composite",
+    "render_tabletop_scene",
+    "SALIENCY_METHODS",
+    "Fixations",
+    "gaussian_mask",
+    "salient_region",
+    "saliency",
+    "winner_take_all",
+    "HeadTrack",
+    "track_head",
+    "VideoFileError",
+    "read_frames",
+    "render_tabletop_video",
+    "video_fps",
+    "write_video",
+]

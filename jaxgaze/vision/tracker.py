@@ -159,6 +159,12 @@ def _default_detector(frame):
 # The jitted update
 
 
+def _float():
+    """JAX's default float: float32, or float64 under ``jax_enable_x64`` (the pose solve
+    must use one dtype throughout; optimistix's damping term follows the default)."""
+    return jnp.zeros(()).dtype
+
+
 def _project(points, focal, centre, scale):
     """Pixel ``(row, col)`` array indices at pyramid scale ``scale`` of optical points ``(N, 3)``."""
     z = jnp.maximum(points[:, 2], 1e-6)
@@ -212,11 +218,11 @@ def _update(prev, cur, R, t, points_head, normals_head, ref_values, ref_weights,
     ``prev``/``cur`` are pyramids (tuples, fine first). ``ref_values``/``ref_weights``
     are the first frame's template, used when ``use_reference``.
     """
-    size = jnp.array([prev[0].shape[1], prev[0].shape[0]], jnp.float32)
+    size = jnp.array([prev[0].shape[1], prev[0].shape[0]], _float())
     points = points_head @ R.T + t
     normals = normals_head @ R.T
     weight = _visibility(points, normals, focal, centre, size)
-    params = jnp.zeros(6, jnp.float32)
+    params = jnp.zeros(6, _float())
     converged = jnp.array(True)
     for level in reversed(range(len(prev))):
         scale = 0.5**level
@@ -234,8 +240,8 @@ def _update(prev, cur, R, t, points_head, normals_head, ref_values, ref_weights,
         w_ref = ref_weights * _visibility(moved, normals_head @ R_new.T, focal, centre, size)
         enough = jnp.sum(w_ref) > 0.25 * jnp.sum(ref_weights) + 1e-6  # enough of the first face still in view
         args = (moved, t_new, ref_values, jnp.sqrt(w_ref), cur[0], focal, centre, 1.0)
-        refined, ok = _solve(jnp.zeros(6, jnp.float32), args, max_steps)
-        refined = jnp.where(enough, refined, jnp.zeros(6, jnp.float32))
+        refined, ok = _solve(jnp.zeros(6, _float()), args, max_steps)
+        refined = jnp.where(enough, refined, jnp.zeros(6, _float()))
         converged &= ok | ~enough
         R_new = axis_angle_to_rotation_matrix(refined[:3]) @ R_new
         t_new = t_new + _TAU_SCALE * refined[3:]
@@ -251,7 +257,7 @@ def _update(prev, cur, R, t, points_head, normals_head, ref_values, ref_weights,
 
 @jax.jit
 def _template(image, R, t, points_head, normals_head, focal, centre):
-    size = jnp.array([image.shape[1], image.shape[0]], jnp.float32)
+    size = jnp.array([image.shape[1], image.shape[0]], _float())
     points = points_head @ R.T + t
     weight = _visibility(points, normals_head @ R.T, focal, centre, size)
     rows, cols = _project(points, focal, centre, 1.0)
@@ -337,7 +343,7 @@ def track_head(
     if int(levels) < 1 or int(max_steps) < 1:
         raise ValueError(f"levels and max_steps must be at least 1, got {levels}, {max_steps}")
     detector = _default_detector if detector is None else detector
-    points_head, normals_head = (jnp.asarray(x, jnp.float32) for x in surface_grid(head, *grid))
+    points_head, normals_head = (jnp.asarray(x, _float()) for x in surface_grid(head, *grid))
     ranges = np.radians(TRACKED_RANGE_DEG)
 
     rows = []  # (pose, translation, residual, reinitialised, converged, R_optical_from_frontal)
@@ -352,11 +358,11 @@ def track_head(
             box, focal_px=focal, image_size=(shape[1], shape[0]), head=head, head_width_in_box=head_width_in_box
         )
         Rf = frontal_rotation(t0)
-        return (jnp.asarray(Rf, jnp.float32), jnp.asarray(t0, jnp.float32), Rf)
+        return (jnp.asarray(Rf, _float()), jnp.asarray(t0, _float()), Rf)
 
     def reference_template(image, st):
         if reference != "first":
-            return jnp.zeros(points_head.shape[0], jnp.float32), jnp.zeros(points_head.shape[0], jnp.float32)
+            return jnp.zeros(points_head.shape[0], _float()), jnp.zeros(points_head.shape[0], _float())
         return _template(image, st[0], st[1], points_head, normals_head, focal_j, centre)
 
     for index, frame in enumerate(_iterate_frames(frames)):
@@ -367,11 +373,11 @@ def track_head(
             while n > 1 and min(shape) / 2 ** (n - 1) < _MIN_COARSE_SIDE:
                 n -= 1
             num_levels = n
-            centre = jnp.array([shape[1] / 2.0, shape[0] / 2.0], jnp.float32)
-            focal_j = jnp.float32(focal)
+            centre = jnp.array([shape[1] / 2.0, shape[0] / 2.0], _float())
+            focal_j = jnp.asarray(focal, _float())
         elif gray.shape != shape:
             raise ValueError(f"frames[{index}] is {gray.shape[1]}x{gray.shape[0]} px but frame 0 is {shape[1]}x{shape[0]}")
-        pyr = tuple(jnp.asarray(level) for level in _pyramid(gray, num_levels, float(blur_sigma)))
+        pyr = tuple(jnp.asarray(level, _float()) for level in _pyramid(gray, num_levels, float(blur_sigma)))
 
         if index == 0:
             box = initial_box
@@ -396,7 +402,7 @@ def track_head(
                 prev, pyr, R, t, points_head, normals_head, ref[0], ref[1], focal_j, centre,
                 max_steps=int(max_steps), use_reference=reference == "first",
             )
-            pose = np.asarray(rotation_to_pose(jnp.asarray(Rf.T, jnp.float32) @ R), dtype=float)
+            pose = np.asarray(rotation_to_pose(jnp.asarray(Rf.T, _float()) @ R), dtype=float)
             if np.all(np.abs(pose) <= ranges) and np.all(np.isfinite(pose)):
                 state = (R, t, Rf)
                 rows.append((pose, np.asarray(t, float), float(residual), False, bool(converged), Rf))

@@ -1,0 +1,174 @@
+"""``jaxgaze fit-gaze`` and ``jaxgaze attend``: a model fitted on simulated sessions, attention on a rendered video."""
+
+import csv
+import json
+from types import SimpleNamespace
+
+import cv2
+import jax
+import numpy as np
+import pytest
+from cli_helpers import assert_failed, run_main
+
+from jaxgaze.cli import ATTEND_COLUMNS, main
+from jaxgaze.gp.io import load_gaze_regression
+from jaxgaze.gp.regression import GazeRegression
+from jaxgaze.simulate_tabletop import simulate_tabletop_sessions
+from jaxgaze.vision.head_model import frontal_rotation, pose_to_rotation, rotation_to_pose
+from jaxgaze.vision.video import read_frames, render_tabletop_video, write_video
+
+DEMO_FRAMES = 14  # + 10 lead-in frames = 24 frames = 6 windows of 4
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    """``jaxgaze fit-gaze`` on 2 short simulated sessions, with a lossless demo video of a held-out session."""
+    folder = tmp_path_factory.mktemp("attend")
+    model, video = folder / "gp.json", folder / "demo.mkv"
+    status = main(["fit-gaze", "--output", str(model), "--seed", "0", "--people", "2", "--sessions", "1",
+                   "--duration", "5", "--demo-video", str(video), "--demo-frames", str(DEMO_FRAMES), "-q"])
+    assert status == 0
+    # The same held-out session, rendered again for its ground truth (fit-gaze's seed → keys → 3rd person).
+    key_sim, _, key_render = jax.random.split(jax.random.key(0), 3)
+    demo = simulate_tabletop_sessions(key_sim, num_people=3, sessions_per_person=1, duration_s=5.0, fps=10.0)[2]
+    frames, truth = render_tabletop_video(demo, key=key_render, num_frames=DEMO_FRAMES)
+    return SimpleNamespace(folder=folder, model=model, video=video, frames=frames, truth=truth)
+
+
+def _rows(path):
+    with open(path, newline="") as handle:
+        reader = csv.DictReader(handle)
+        return tuple(reader.fieldnames), list(reader)
+
+
+def _pooled_true_pose(truth, window):
+    """The rendered pose relative to the first frame's eye-contact frame (what the tracker reports), pooled."""
+    R0 = frontal_rotation(truth.head_position_optical[0])
+    R = truth.R_optical_from_frontal @ np.asarray(pose_to_rotation(truth.head_pose), np.float64)
+    pose = np.asarray(rotation_to_pose(R0.T @ R), np.float64)
+    n = len(pose) // window
+    return pose[: n * window].reshape(n, window, 3).mean(1)
+
+
+def test_fit_gaze_writes_a_model_with_metadata_and_a_demo_video(fitted):
+    doc = json.loads(fitted.model.read_text())
+    assert doc["format"] == "jaxgaze.gaze_regression" and doc["model"] == "gp" and doc["dtype"] == "float32"
+    meta = doc["metadata"]
+    assert meta["image_size"] == [320, 240] and meta["fps"] == 10.0 and meta["window"] == 4
+    assert meta["focal_px"] == pytest.approx(fitted.truth.focal_px / 2)
+    assert meta["num_training_frames"] == 100 and "converged" in meta
+    with jax.enable_x64(True):  # a float32 fit loads in float64 (as 'attend' loads it)
+        model = load_gaze_regression(fitted.model)
+        assert isinstance(model, GazeRegression) and model.direction_gp.X.dtype == np.float64
+    # The demo video is the held-out session rendered at 640 x 480 with 10 lead-in frames, losslessly.
+    frames = read_frames(fitted.video)
+    assert len(frames) == 10 + DEMO_FRAMES and frames[0].shape == (480, 640, 3)
+    assert all(np.array_equal(a, b) for a, b in zip(frames, fitted.frames))
+
+
+def test_attend_end_to_end_on_the_rendered_video(fitted, tmp_path, capsys):
+    out = tmp_path / "attend.csv"
+    status, stdout, stderr = run_main(capsys, ["attend", fitted.video, "--model", fitted.model, "--output", out,
+                                               "--no-progress"])
+    assert status == 0, stderr
+    assert stdout == ""
+    assert "of 6 window(s) of 4 frames attended" in stderr and "scaled x 2" in stderr and str(out) in stderr
+    columns, rows = _rows(out)
+    assert columns == ATTEND_COLUMNS
+    assert len(rows) == (10 + DEMO_FRAMES) // 4
+    assert [int(r["start_frame"]) for r in rows] == [0, 4, 8, 12, 16, 20]
+    assert [float(r["start_time"]) for r in rows] == pytest.approx([0.0, 0.4, 0.8, 1.2, 1.6, 2.0])
+    valid = [r for r in rows if r["valid"] == "1"]
+    assert len(valid) >= 4
+    for r in valid:
+        assert 0.0 < float(r["probability"]) <= 1.0 and r["reason"] == ""
+        x, y = float(r["attended_x"]), float(r["attended_y"])
+        assert 0 <= x <= 640 and 0 <= y <= 480
+        assert float(r["region_x_min"]) <= x <= float(r["region_x_max"])
+    # The tracked head pose follows the rendered one (64 px head: within a few degrees).
+    pose = np.array([[float(r[c]) for c in ("pitch", "yaw", "roll")] for r in rows])
+    error = np.degrees(np.abs(pose - _pooled_true_pose(fitted.truth, 4)))
+    assert error.max() < 5.0, error
+    # The head centre is the projected front of the face, the session's eye midpoint.
+    head = np.array([[float(r["head_x"]), float(r["head_y"])] for r in rows])
+    true_head = fitted.truth.head_centre_image[:24].reshape(6, 4, 2).mean(1)
+    assert np.abs(head - true_head).max() < 6.0
+
+
+def test_attend_reads_a_frame_folder_with_options(fitted, tmp_path, capsys):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for t, frame in enumerate(fitted.frames[:12]):
+        cv2.imwrite(str(folder / f"f{t}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    out = tmp_path / "a.csv"
+    status, _, stderr = run_main(capsys, ["attend", folder, "--model", fitted.model, "--out", out, "--window", "5",
+                                          "--max-frames", "11", "--method", "spectral_residual",
+                                          "--focal-px", fitted.truth.focal_px, "--fps", "25", "-q"])
+    assert status == 0, stderr
+    assert stderr == ""
+    _, rows = _rows(out)
+    assert [int(r["start_frame"]) for r in rows] == [0, 5]  # 11 frames: 2 windows of 5, the last frame dropped
+    assert [float(r["start_time"]) for r in rows] == pytest.approx([0.0, 0.2])
+    assert all(r["valid"] in ("0", "1") for r in rows)
+
+
+# ---------------------------------------------------------------------------
+# Errors: exit status 2, one line on stderr, no output file
+
+
+def _fails(capsys, argv, out, *words):
+    status, stdout, stderr = run_main(capsys, argv)
+    assert_failed(status, stdout, stderr, *words)
+    assert not out.exists() or out.read_text() == "old"
+    assert [p.name for p in out.parent.iterdir() if p.name.startswith(".")] == []  # no temporary file
+
+
+def test_attend_errors(fitted, tmp_path, capsys):
+    out = tmp_path / "attend.csv"
+    text = tmp_path / "clip.mp4"
+    text.write_text("not a video\n" * 50)
+    _fails(capsys, ["attend", text, "--model", fitted.model, "--output", out], out,
+           "not a video OpenCV can read", "clip.mp4")
+    _fails(capsys, ["attend", tmp_path / "nope.mp4", "--model", fitted.model, "--output", out], out,
+           "no such video file or frame folder", "nope.mp4")
+    _fails(capsys, ["attend", fitted.video, "--model", tmp_path / "none.json", "--output", out], out,
+           "model file not found", "none.json")
+    bad = tmp_path / "bad.json"
+    bad.write_text("{ not json")
+    _fails(capsys, ["attend", fitted.video, "--model", bad, "--output", out], out, "invalid JSON", "bad.json:1")
+    doc = json.loads(fitted.model.read_text())
+    doc["metadata"] = {}
+    blind = tmp_path / "blind.json"
+    blind.write_text(json.dumps(doc))
+    out.write_text("old")  # an existing output is kept
+    _fails(capsys, ["attend", fitted.video, "--model", blind, "--output", out], out, "--focal-px", "blind.json")
+    _fails(capsys, ["attend", fitted.video, "--model", fitted.model, "--output", out, "--max-frames", "3"], out,
+           "fewer than one window of 4")
+    _fails(capsys, ["attend", fitted.video, "--model", fitted.model, "--output", tmp_path / "no" / "a.csv"],
+           out, "directory does not exist")
+    blank = tmp_path / "blank.mkv"
+    write_video(blank, [np.full((120, 160, 3), 90, np.uint8)] * 4, 10)
+    _fails(capsys, ["attend", blank, "--model", fitted.model, "--output", out], out, "no face found", "blank.mkv")
+
+
+@pytest.mark.parametrize("argv", [
+    ["attend", "v.mp4"],  # --model is required
+    ["attend", "v.mp4", "--model", "m.json", "--window", "0"],
+    ["attend", "v.mp4", "--model", "m.json", "--method", "bogus"],
+    ["attend", "v.mp4", "--model", "m.json", "--focal-px", "-3"],
+    ["fit-gaze"],  # --output is required
+    ["fit-gaze", "--output", "m.json", "--method", "svm"],
+])
+def test_usage_errors_exit_2(argv, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert "usage: jaxgaze" in capsys.readouterr().err
+
+
+def test_fit_gaze_errors(tmp_path, capsys):
+    out = tmp_path / "gp.json"
+    _fails(capsys, ["fit-gaze", "--output", out, "--demo-video", tmp_path / "demo.mov"], out, "--demo-video",
+           "demo.mov")
+    _fails(capsys, ["fit-gaze", "--output", tmp_path / "no" / "gp.json"], out, "directory does not exist")
+    _fails(capsys, ["fit-gaze", "--output", out, "--duration", "0.1"], out, "fewer than 2 frames")
