@@ -324,3 +324,15 @@ def test_attend_frames_and_session_refuse_bad_input(table_top):
         target_point_covariance([[1.0, 2.0]], [np.nan], [3.0], [0.1], [0.1])
     with pytest.raises(ValueError, match=">= 0"):
         target_point_covariance([[1.0, 2.0]], [1.0], [3.0], [-0.1], [0.1])
+
+
+def test_region_is_grown_inside_the_mask_not_along_a_salient_band():
+    # A bright band across the whole image touches an odd-coloured square: region growing on
+    # the saliency map alone would follow the band; inside the mask it stays near the square.
+    image = np.full((120, 200, 3), 0.4, np.float32)
+    image[50:64, :] = 1.0
+    image[64:84, 90:110] = (0.9, 0.1, 0.1)  # the square: x 90-110, y 64-84
+    out = attend_window(image, np.array([[100.0, 74.0]]), np.zeros((2, 2)), method="itti")
+    x0, y0, x1, y1 = out.region_box
+    assert 80 <= x0 < 100 < x1 <= 120  # on S alone: x 0-200, the whole band
+    assert 55 <= y0 and y1 <= 95

@@ -28,7 +28,7 @@ region growing. Here the choice is a **posterior over candidate locations**:
   candidates inside box ``k`` (closed box; a candidate inside several boxes goes to
   the box whose centre is nearest) and the rest is ``none_probability``.
 * **Choice**: the top candidate; its region is
-  :func:`~jaxgaze.vision.saliency_maps.salient_region` on ``S``; its object is the box it is in.
+  :func:`~jaxgaze.vision.saliency_maps.salient_region` on the masked map ``S · mask``; its object is the box it is in.
 
 Functions: :func:`attend_window` (one window), :func:`attend_session` (a simulated
 session on its rendered scene, with Q1/Q2 against the truth), :func:`evaluate_attention`
@@ -266,7 +266,9 @@ def attend_window(
     w = np.exp(logw - logw[np.isfinite(logw)].max())
     prob = w / w.sum()
     best = int(np.argmax(prob))
-    region = np.asarray(salient_region(smap, cands[best]), np.float64)
+    # Segment in the masked map: Itti's map can stay high along a whole table edge, and a
+    # region grown on S alone then spans the table (measured: 320 px wide for a 38 px cube).
+    region = np.asarray(salient_region(np.asarray(smap, np.float64) * mask, cands[best]), np.float64)
     if boxes is None:
         objects, obj_prob, none, chosen = np.full(len(cands), -1), None, math.nan, -1
     else:
