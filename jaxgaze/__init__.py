@@ -4,7 +4,7 @@ Frames and units are documented in ``docs/conventions.md``: world/head/camera
 frames, metres, radians inside (degrees only in names ending ``_deg``).
 """
 
-from jaxgaze import bias, geometry, gp, metrics, poses, simulate, simulate_calibration, simulate_dyadic, simulate_tabletop, vision
+from jaxgaze import bias, facial, geometry, gp, metrics, poses, simulate, simulate_calibration, simulate_dyadic, simulate_tabletop, vision
 from jaxgaze.bias import (
     BiasEstimate,
     estimate_bias,
@@ -50,6 +50,7 @@ from jaxgaze.vision import attend_frames, detect_faces, track_head
 __version__ = "0.1.0"
 
 __all__ = [
+    "facial",
     "vision",
     "attend_frames",
     "detect_faces",

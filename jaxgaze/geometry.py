@@ -152,6 +152,34 @@ def axis_angle_to_rotation_matrix(rotation_vector: Float[Array, "... 3"]) -> Flo
     return quaternion_to_rotation_matrix(q)
 
 
+def head_pose_to_rotation(pose: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
+    """``R_frontal_from_head = R_z(yaw) R_y(−pitch) R_x(roll)`` for ``pose = (..., 3)`` =
+    ``(pitch, yaw, roll)`` (radians), head frame axes as in ``docs/conventions.md``.
+
+    Yaw > 0 turns the face to the person's left, pitch > 0 up, roll > 0 raises the left
+    ear. The frontal frame is the head's pose at rest (facing the camera for the head
+    tracker and the facial-feature cascade).
+    """
+    pose = jnp.asarray(pose)
+    zeros = jnp.zeros_like(pose[..., 0])
+
+    def about(axis, angle):
+        v = [zeros, zeros, zeros]
+        v[axis] = angle
+        return axis_angle_to_rotation_matrix(jnp.stack(v, axis=-1))
+
+    return about(2, pose[..., 1]) @ about(1, -pose[..., 0]) @ about(0, pose[..., 2])
+
+
+def rotation_to_head_pose(R: Float[Array, "... 3 3"]) -> Float[Array, "... 3"]:
+    """Inverse of :func:`head_pose_to_rotation`: ``(..., 3)`` (pitch, yaw, roll); pitch in [−π/2, π/2]."""
+    R = jnp.asarray(R)
+    pitch = jnp.arcsin(jnp.clip(R[..., 2, 0], -1.0, 1.0))
+    yaw = jnp.arctan2(R[..., 1, 0], R[..., 0, 0])
+    roll = jnp.arctan2(R[..., 2, 1], R[..., 2, 2])
+    return jnp.stack([pitch, yaw, roll], axis=-1)
+
+
 def orthonormal_basis(v: Float[Array, "3"]) -> tuple[Array, Array]:
     """Two unit vectors ``u1, u2`` with ``(v, u1, u2)`` right-handed orthonormal.
 

@@ -450,3 +450,18 @@ def test_yaw_pitch_of_a_pole_with_subnormal_components_is_finite():
     yaw, pitch = dir_to_yp(v)
     assert float(yaw) == 0.0 and float(pitch) == pytest.approx(-np.pi / 2)
     np.testing.assert_allclose(yp_to_dir(yaw, pitch), [0.0, 0.0, -1.0], atol=2e-6)
+
+
+def test_head_pose_rotation_signs_and_round_trip(x64):
+    # Yaw turns the forward axis (+x) towards the person's left (+y); pitch raises it (+z);
+    # roll raises the left ear: the left axis (+y) gains +z.
+    R = g.head_pose_to_rotation(jnp.array([0.0, 0.3, 0.0]))
+    np.testing.assert_allclose(R[:, 0], [np.cos(0.3), np.sin(0.3), 0.0], atol=1e-12)
+    R = g.head_pose_to_rotation(jnp.array([0.2, 0.0, 0.0]))
+    np.testing.assert_allclose(R[:, 0], [np.cos(0.2), 0.0, np.sin(0.2)], atol=1e-12)
+    R = g.head_pose_to_rotation(jnp.array([0.0, 0.0, 0.1]))
+    np.testing.assert_allclose(R[:, 1], [0.0, np.cos(0.1), np.sin(0.1)], atol=1e-12)
+    poses = jax.random.uniform(jax.random.key(3), (50, 3), minval=-1.2, maxval=1.2)
+    Rs = g.head_pose_to_rotation(poses)
+    np.testing.assert_allclose(np.einsum("nij,nkj->nik", Rs, Rs), np.broadcast_to(np.eye(3), (50, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(g.rotation_to_head_pose(Rs), poses, atol=1e-10)

@@ -20,10 +20,28 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-__all__ = ["POSITIVE_FLOOR", "positive", "unconstrain_positive"]
+__all__ = ["FIT_BOUNDS", "POSITIVE_FLOOR", "bound_penalty", "positive", "unconstrain_positive"]
 
 #: Smallest value a positive parameter can take.
 POSITIVE_FLOOR = 1e-12
+
+#: ``(low, high)`` natural values that :func:`jaxgaze.gp.fit` keeps every trained
+#: parameter within: scikit-learn's default hyperparameter bounds. Some likelihoods
+#: rise forever along a ridge (the arc-sine weight and bias variances growing
+#: together towards a scale-free limit, measured running to 1e6–1e12); there ``K``
+#: becomes singular in float32 and the fit stopped on a non-finite gradient.
+FIT_BOUNDS = (1e-5, 1e5)
+
+
+def bound_penalty(raw: Float[Array, " p"], stiffness) -> Float[Array, ""]:
+    """``½ · stiffness · Σ d²``, ``d`` the distance of ``raw`` outside ``log FIT_BOUNDS``.
+
+    Zero inside the bounds (the fit's objective is the exact −LML there); a quadratic
+    wall outside, so the optimiser stays a smooth unconstrained one.
+    """
+    lo, hi = (float(np.log(b)) for b in FIT_BOUNDS)
+    excess = jnp.maximum(raw - hi, 0.0) + jnp.maximum(lo - raw, 0.0)
+    return 0.5 * stiffness * jnp.sum(excess**2)
 
 
 def positive(raw: Float[Array, "*shape"]) -> Float[Array, "*shape"]:

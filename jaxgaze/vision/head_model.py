@@ -45,10 +45,9 @@ import math
 from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from jaxgaze.geometry import axis_angle_to_rotation_matrix
+from jaxgaze.geometry import head_pose_to_rotation, rotation_to_head_pose
 from jaxgaze.vision.images import to_rgb_float
 
 __all__ = [
@@ -112,29 +111,9 @@ def frontal_rotation(position_optical) -> np.ndarray:
     return np.stack([fwd, left, up], axis=1)
 
 
-def pose_to_rotation(pose):
-    """``R_frontal_from_head = R_z(yaw) R_y(−pitch) R_x(roll)`` for ``pose = (..., 3)`` = (pitch, yaw, roll)."""
-    pose = jnp.asarray(pose)
-    zeros = jnp.zeros_like(pose[..., 0])
-
-    def about(axis, angle):
-        v = [zeros, zeros, zeros]
-        v[axis] = angle
-        return axis_angle_to_rotation_matrix(jnp.stack(v, axis=-1))
-
-    return about(2, pose[..., 1]) @ about(1, -pose[..., 0]) @ about(0, pose[..., 2])
-
-
-_pose_to_rotation_jit = jax.jit(pose_to_rotation)
-
-
-def rotation_to_pose(R):
-    """Inverse of :func:`pose_to_rotation`: ``(..., 3)`` (pitch, yaw, roll); pitch in [−π/2, π/2]."""
-    R = jnp.asarray(R)
-    pitch = jnp.arcsin(jnp.clip(R[..., 2, 0], -1.0, 1.0))
-    yaw = jnp.arctan2(R[..., 1, 0], R[..., 0, 0])
-    roll = jnp.arctan2(R[..., 2, 1], R[..., 2, 2])
-    return jnp.stack([pitch, yaw, roll], axis=-1)
+pose_to_rotation = head_pose_to_rotation  # (pitch, yaw, roll) -> R_frontal_from_head
+rotation_to_pose = rotation_to_head_pose
+_pose_to_rotation_jit = jax.jit(head_pose_to_rotation)
 
 
 # ---------------------------------------------------------------------------

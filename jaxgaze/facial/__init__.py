@@ -1,0 +1,57 @@
+"""Head orientation from partial facial features (ROVIS gaze following,
+``../shared/seeds/003_edc930f8c7304556.txt``; ``../shared/METHODS.md`` §4).
+
+* :mod:`~jaxgaze.facial.face_model` — the generic 3D face (head frame, metres);
+* :mod:`~jaxgaze.facial.simulate` — faces at known poses with noisy, partly missing
+  feature hypotheses (ground truth for every step);
+* :mod:`~jaxgaze.facial.spatial` — the spatial model of 4- and 3-feature configurations
+  and the exact (vmapped) search over hypothesis combinations; the independent-detector
+  baseline;
+* :mod:`~jaxgaze.facial.orientation` — Gee & Cipolla's facial normal and ``cv2.solvePnP``,
+  each with a covariance, and their :class:`~jaxgaze.GazeRays`;
+* :mod:`~jaxgaze.facial.control` — extremum-seeking control (of the hypothesis threshold);
+* :mod:`~jaxgaze.facial.metrics` — mean and maximum normalised deviations (eq. 3–5).
+"""
+
+from jaxgaze.facial.control import ESCTrajectory, extremum_seeking
+from jaxgaze.facial.face_model import FEATURES, POINTS, R_OPTICAL_FROM_FRONTAL, FaceModel, generic_face
+from jaxgaze.facial.metrics import cumulative_histogram, normalized_deviation, tau
+from jaxgaze.facial.orientation import (
+    HeadOrientation,
+    orientation_gee_cipolla,
+    orientation_pnp,
+    to_gaze_rays,
+)
+from jaxgaze.facial.simulate import Hypotheses, SimulatedFaces, simulate_faces
+from jaxgaze.facial.spatial import (
+    Configuration,
+    SpatialModel,
+    best_configuration,
+    fit_spatial_model,
+    independent_detectors,
+)
+
+__all__ = [
+    "FEATURES",
+    "POINTS",
+    "R_OPTICAL_FROM_FRONTAL",
+    "FaceModel",
+    "generic_face",
+    "ESCTrajectory",
+    "extremum_seeking",
+    "cumulative_histogram",
+    "normalized_deviation",
+    "tau",
+    "HeadOrientation",
+    "orientation_gee_cipolla",
+    "orientation_pnp",
+    "to_gaze_rays",
+    "Hypotheses",
+    "SimulatedFaces",
+    "simulate_faces",
+    "Configuration",
+    "SpatialModel",
+    "best_configuration",
+    "fit_spatial_model",
+    "independent_detectors",
+]

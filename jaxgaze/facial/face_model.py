@@ -1,0 +1,52 @@
+"""A generic 3D face: the landmark positions the facial-feature cascade localises
+(ROVIS gaze following, ``../shared/seeds/003_edc930f8c7304556.txt``; METHODS.md §4).
+
+Head frame (``docs/conventions.md``): origin at the eye midpoint, +x forward (out of
+the face), +y the person's left, +z up; metres. Values are adult averages rounded to
+millimetres (inter-pupillary distance about 63 mm; nose tip about 45 mm below and
+20 mm in front of the eye line; mouth about 70 mm below the eyes, 50 mm wide).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["FEATURES", "POINTS", "R_OPTICAL_FROM_FRONTAL", "FaceModel", "generic_face"]
+
+#: the frontal head frame of a face looking straight back at the camera, in the optical
+#: frame: forward = −z, left = +x, up = −y (the same for every head position).
+R_OPTICAL_FROM_FRONTAL = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]])
+R_OPTICAL_FROM_FRONTAL.setflags(write=False)
+
+#: the four facial features (ROIs) of the cascade, in this order everywhere.
+FEATURES = ("right_eye", "left_eye", "nose", "mouth")
+#: the localised points: eye centres, the nose tip and the two mouth corners.
+POINTS = ("right_eye", "left_eye", "nose_tip", "mouth_right", "mouth_left")
+
+
+class FaceModel(NamedTuple):
+    """3D landmarks in the head frame (metres), rows in the order of :data:`POINTS`."""
+
+    points: np.ndarray  # (5, 3)
+
+    def feature_centres(self) -> np.ndarray:
+        """``(4, 3)`` one point per feature of :data:`FEATURES` (the mouth: its corners' midpoint)."""
+        p = self.points
+        return np.stack([p[0], p[1], p[2], 0.5 * (p[3] + p[4])])
+
+
+def generic_face() -> FaceModel:
+    """The generic adult face used by the simulator and the pose estimators."""
+    return FaceModel(
+        np.array(
+            [
+                [0.000, -0.0315, 0.000],  # right eye centre (the person's right: -y)
+                [0.000, 0.0315, 0.000],  # left eye centre
+                [0.020, 0.000, -0.045],  # nose tip
+                [-0.005, -0.025, -0.072],  # right mouth corner
+                [-0.005, 0.025, -0.072],  # left mouth corner
+            ]
+        )
+    )
