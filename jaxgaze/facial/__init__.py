@@ -9,11 +9,16 @@
   baseline;
 * :mod:`~jaxgaze.facial.orientation` — Gee & Cipolla's facial normal and ``cv2.solvePnP``,
   each with a covariance, and their :class:`~jaxgaze.GazeRays`;
+* :mod:`~jaxgaze.facial.gmm` — GMM point localisation inside an ROI (EM in JAX);
+* :mod:`~jaxgaze.facial.chain` — the cascade on simulated faces, its confidence ``y_f`` and
+  the threshold tuned by extremum seeking;
 * :mod:`~jaxgaze.facial.control` — extremum-seeking control (of the hypothesis threshold);
 * :mod:`~jaxgaze.facial.metrics` — mean and maximum normalised deviations (eq. 3–5).
 """
 
+from jaxgaze.facial.chain import ChainResult, run_chain, sweep_threshold, tune_threshold
 from jaxgaze.facial.control import ESCTrajectory, extremum_seeking
+from jaxgaze.facial.gmm import GMMFit, PointEstimate, fit_gmm, localize_point
 from jaxgaze.facial.face_model import FEATURES, POINTS, R_OPTICAL_FROM_FRONTAL, FaceModel, generic_face
 from jaxgaze.facial.metrics import cumulative_histogram, normalized_deviation, tau
 from jaxgaze.facial.orientation import (
@@ -32,6 +37,14 @@ from jaxgaze.facial.spatial import (
 )
 
 __all__ = [
+    "ChainResult",
+    "run_chain",
+    "sweep_threshold",
+    "tune_threshold",
+    "GMMFit",
+    "PointEstimate",
+    "fit_gmm",
+    "localize_point",
     "FEATURES",
     "POINTS",
     "R_OPTICAL_FROM_FRONTAL",
