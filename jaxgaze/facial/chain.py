@@ -54,8 +54,8 @@ from jaxtyping import Array
 
 from jaxgaze.facial.control import ESCTrajectory, extremum_seeking
 from jaxgaze.facial.gmm import localize_point
-from jaxgaze.facial.simulate import Hypotheses, SimulatedFaces
-from jaxgaze.facial.spatial import SpatialModel, config_log_density, enumerate_combinations
+from jaxgaze.facial.simulate import SimulatedFaces
+from jaxgaze.facial.spatial import SpatialModel, _check_hypotheses, config_log_density, enumerate_combinations
 
 __all__ = ["ChainResult", "run_chain", "sweep_threshold", "tune_threshold"]
 
@@ -158,16 +158,7 @@ def _select_batch(P, C, loc, threshold, model, combos, method):
 
 
 def _prepare(hypotheses, features_image, visible):
-    if isinstance(hypotheses, Hypotheses):
-        P, C = hypotheses.positions, hypotheses.confidences
-    else:
-        P, C = hypotheses
-    P = np.asarray(P, float)
-    C = np.asarray(C, float)
-    if P.ndim < 3 or P.shape[-3] != 4 or P.shape[-1] != 2 or C.shape != P.shape[:-1]:
-        raise ValueError(f"hypotheses must be positions (..., 4, H, 2) and confidences (..., 4, H), got {P.shape}, {C.shape}")
-    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(C))) or np.any((C < 0) | (C > 1)):
-        raise ValueError("hypotheses must be finite with confidences in [0, 1]")
+    P, C, _ = _check_hypotheses(hypotheses, 0.0)  # the same checks as the spatial search
     batch = P.shape[:-3]
     T = np.asarray(features_image, float)
     if T.shape != (*batch, 4, 2) or not np.all(np.isfinite(T)):
