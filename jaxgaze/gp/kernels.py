@@ -226,6 +226,12 @@ class _Parametrised(Kernel):
             raise ValueError(f"{kname}: {name} must be a scalar, got shape {shape}")
         setattr(self, "raw_" + name, unconstrain_positive(value, name=f"{kname} {name}"))
 
+    def _set_parameters(self, fixed, **values) -> None:
+        """Store every parameter of :attr:`PARAMETERS` (natural values) and the ``fixed`` names."""
+        for name in self.PARAMETERS:
+            self._set(name, values[name])
+        self._set_fixed(fixed)
+
     def _set_fixed(self, fixed) -> None:
         kname = type(self).__name__
         fixed = (fixed,) if isinstance(fixed, str) else tuple(fixed)
@@ -280,8 +286,7 @@ class Constant(_Parametrised):
     raw_variance: Float[Array, ""]
 
     def __init__(self, variance: float = 1.0, *, fixed=()):
-        self._set("variance", variance)
-        self._set_fixed(fixed)
+        self._set_parameters(fixed, variance=variance)
 
     variance = _natural_value("variance")
 
@@ -304,9 +309,7 @@ class RBF(_Parametrised):
     raw_lengthscale: Float[Array, "*D"]
 
     def __init__(self, variance: float = 1.0, lengthscale=1.0, *, fixed=()):
-        self._set("variance", variance)
-        self._set("lengthscale", lengthscale)
-        self._set_fixed(fixed)
+        self._set_parameters(fixed, variance=variance, lengthscale=lengthscale)
 
     variance = _natural_value("variance")
     lengthscale = _natural_value("lengthscale")
@@ -340,25 +343,22 @@ class RationalQuadratic(_Parametrised):
     raw_alpha: Float[Array, ""]
 
     def __init__(self, variance: float = 1.0, lengthscale=1.0, alpha: float = 1.0, *, fixed=()):
-        self._set("variance", variance)
-        self._set("lengthscale", lengthscale)
-        self._set("alpha", alpha)
-        self._set_fixed(fixed)
+        self._set_parameters(fixed, variance=variance, lengthscale=lengthscale, alpha=alpha)
 
     variance = _natural_value("variance")
     lengthscale = _natural_value("lengthscale")
     alpha = _natural_value("alpha")
 
-    def evaluate(self, x1, x2):
-        r2 = jnp.sum(((x1 - x2) / self.lengthscale) ** 2)
+    def _of_r2(self, r2):
         alpha = self.alpha
         return self.variance * jnp.exp(-alpha * jnp.log1p(r2 / (2.0 * alpha)))
 
+    def evaluate(self, x1, x2):
+        return self._of_r2(jnp.sum(((x1 - x2) / self.lengthscale) ** 2))
+
     def _cross(self, X1, X2):
         ls = self.lengthscale
-        r2 = _squared_distances(X1 / ls, X2 / ls)
-        alpha = self.alpha
-        return self.variance * jnp.exp(-alpha * jnp.log1p(r2 / (2.0 * alpha)))
+        return self._of_r2(_squared_distances(X1 / ls, X2 / ls))
 
     def _initialise(self, stats, variance):
         ls = stats.dist_median if np.ndim(self.raw_lengthscale) == 0 else stats.dist_median_per_feature
@@ -381,10 +381,7 @@ class ArcSine(_Parametrised):
     raw_bias_variance: Float[Array, ""]
 
     def __init__(self, variance: float = 1.0, weight_variance=1.0, bias_variance: float = 1.0, *, fixed=()):
-        self._set("variance", variance)
-        self._set("weight_variance", weight_variance)
-        self._set("bias_variance", bias_variance)
-        self._set_fixed(fixed)
+        self._set_parameters(fixed, variance=variance, weight_variance=weight_variance, bias_variance=bias_variance)
 
     variance = _natural_value("variance")
     weight_variance = _natural_value("weight_variance")
@@ -431,9 +428,7 @@ class Linear(_Parametrised):
     raw_bias_variance: Float[Array, ""]
 
     def __init__(self, variance=1.0, bias_variance: float = 1.0, *, fixed=()):
-        self._set("variance", variance)
-        self._set("bias_variance", bias_variance)
-        self._set_fixed(fixed)
+        self._set_parameters(fixed, variance=variance, bias_variance=bias_variance)
 
     variance = _natural_value("variance")
     bias_variance = _natural_value("bias_variance")
@@ -464,8 +459,7 @@ class White(_Parametrised):
     raw_variance: Float[Array, ""]
 
     def __init__(self, variance: float = 1.0, *, fixed=()):
-        self._set("variance", variance)
-        self._set_fixed(fixed)
+        self._set_parameters(fixed, variance=variance)
 
     variance = _natural_value("variance")
 
