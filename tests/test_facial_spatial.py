@@ -59,6 +59,23 @@ def test_simulator_bad_args():
         simulate_faces(jax.random.key(0), 0)
     with pytest.raises(ValueError):
         simulate_faces(jax.random.key(0), 3, view="side")
+    with pytest.raises(ValueError, match="point_sd"):
+        simulate_faces(jax.random.key(0), 3, point_sd=-0.001)
+    with pytest.raises(ValueError, match="shape_sd"):
+        simulate_faces(jax.random.key(0), 3, shape_sd=float("nan"))
+
+
+def test_simulator_generic_shape_is_the_generic_face():
+    """shape_sd = point_sd = 0: every face is the generic face, so PnP recovers the pose exactly."""
+    from jaxgaze.facial import orientation_pnp
+    from jaxgaze.facial.simulate import FOCAL_PX, IMAGE_HEIGHT, IMAGE_WIDTH
+
+    faces = simulate_faces(jax.random.key(4), 5, view="frontal", shape_sd=0.0, point_sd=0.0)
+    for i in range(5):
+        o = orientation_pnp(faces.points_image[i], focal_px=FOCAL_PX, principal_point=(IMAGE_WIDTH / 2, IMAGE_HEIGHT / 2))
+        np.testing.assert_allclose([o.yaw, o.pitch, o.roll], [faces.yaw[i], faces.pitch[i], faces.roll[i]], atol=1e-4)
+    varied = simulate_faces(jax.random.key(4), 5, view="frontal")
+    assert np.max(np.abs(varied.points_image - faces.points_image)) > 0.1  # the default varies the shape
 
 
 # ---------------------------------------------------------------- must-show

@@ -246,3 +246,37 @@ def test_fit_float32_data_with_both_methods():
         assert fitted.predict(Xs.astype(np.float32))[0].dtype == jnp.float32
         assert 0.005 < float(fitted.kernel.kernels[1].variance) < 0.02  # noise 0.1² in _data
     np.testing.assert_allclose(fits[0].log_marginal_likelihood, fits[1].log_marginal_likelihood, atol=0.05)
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_inverse_from_cholesky_is_the_symmetric_inverse(x64, dtype):
+    from jaxgaze.gp.exact import _inverse_from_cholesky
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(57, 57))
+    K = A @ A.T + 57 * np.eye(57)
+    L = jnp.linalg.cholesky(jnp.asarray(K, dtype))
+    inv = np.asarray(jax.jit(_inverse_from_cholesky)(L))
+    assert inv.dtype == np.dtype(dtype)
+    np.testing.assert_array_equal(inv, inv.T)
+    np.testing.assert_allclose(inv, np.linalg.inv(K), rtol=1e-4 if dtype == "float32" else 1e-10, atol=1e-8)
+    assert np.isnan(np.asarray(_inverse_from_cholesky(L.at[5, 5].set(0.0)))).all()
+    batched = jax.vmap(_inverse_from_cholesky)(jnp.stack([L, 2 * L]))
+    np.testing.assert_allclose(batched[1], inv / 4, rtol=1e-5 if dtype == "float32" else 1e-12)
+
+
+def test_optimise_reports_the_objective_at_its_optimum(x64):
+    # A float64 stage returns the solver's own last evaluation as its value (no re-evaluation):
+    # it must be the objective at the returned parameters.
+    from jaxgaze.gp import exact
+
+    X, y, _ = _data(n=60)
+    kernel = gp.RationalQuadratic() + gp.White(0.1)
+    template, static = eqx.partition(kernel, kernel.trainable_filter())
+    theta, _ = ravel_pytree(template)
+    X, y = jnp.asarray(X), jnp.asarray(y)
+    for method in ("bfgs", "fisher"):
+        out = exact._optimise(theta[None], template, static, X, y, None, jax.random.key(0), 50, 1e-3, method)
+        fn = exact._objective(template, static, X, y, None)
+        assert bool(out.successful[0]) and int(out.steps[0]) > 1
+        np.testing.assert_allclose(out.value[0], fn(out.theta[0], None), rtol=1e-10)

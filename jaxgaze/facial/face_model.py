@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["FEATURES", "POINTS", "R_OPTICAL_FROM_FRONTAL", "FaceModel", "generic_face"]
+__all__ = ["FEATURES", "POINTS", "R_OPTICAL_FROM_FRONTAL", "FaceModel", "generic_face", "mouth_corners"]
 
 #: the frontal head frame of a face looking straight back at the camera, in the optical
 #: frame: forward = −z, left = +x, up = −y (the same for every head position).
@@ -50,3 +50,19 @@ def generic_face() -> FaceModel:
             ]
         )
     )
+
+
+def mouth_corners(features) -> np.ndarray:
+    """``(..., 2, 2)`` right and left mouth corners placed from FEATURES centres ``(..., 4, 2)``.
+
+    When only the mouth's centre is localised (as by the cascade), its corners are put
+    half the generic mouth width either side of it along the eye axis, in units of the
+    eye distance (both foreshorten alike when the head turns):
+    ``m ∓ ½ (w_mouth / d_eyes) (e_left − e_right)``. NaN where an eye or the mouth is NaN.
+    """
+    f = np.asarray(features, float)
+    if f.shape[-2:] != (4, 2):
+        raise ValueError(f"features must have shape (..., 4, 2) in the order {FEATURES}, got {f.shape}")
+    m = generic_face().points
+    half = 0.5 * (m[4, 1] - m[3, 1]) / (m[1, 1] - m[0, 1]) * (f[..., 1, :] - f[..., 0, :])
+    return np.stack([f[..., 3, :] - half, f[..., 3, :] + half], -2)

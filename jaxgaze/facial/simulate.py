@@ -4,8 +4,10 @@ following, ``../shared/seeds/003_edc930f8c7304556.txt`` Sec. 4; METHODS.md §4).
 Generative model, one face:
 
 1. **Shape.** :func:`~jaxgaze.facial.face_model.generic_face` with every coordinate
-   scaled by ``1 + N(0, shape_sd)`` per axis (a few per cent) and a small per-point
-   jitter.
+   scaled by ``1 + N(0, shape_sd)`` per axis (a few per cent) and a per-point jitter
+   ``N(0, point_sd²)`` (2 mm) in 3D: people differ from the generic face. With
+   ``shape_sd = point_sd = 0`` every face is the generic one, the model the pose
+   estimators assume.
 2. **Pose.** ``R_frontal_from_head = R_z(yaw) R_y(−pitch) R_x(roll)`` (signs of
    ``docs/conventions.md``: yaw > 0 turns to the person's left, i.e. the image's
    right; pitch > 0 is up; roll > 0 lifts the left ear). Frontal faces have
@@ -117,6 +119,7 @@ def simulate_faces(
     roll_deg: float = 10.0,
     face_size_px: tuple[float, float] = (60.0, 120.0),
     shape_sd: float = 0.04,
+    point_sd: float = 0.002,
     hide_yaw_deg: float = 45.0,
     drop_prob: float = 0.03,
     loc_sd: float = 0.03,
@@ -136,6 +139,9 @@ def simulate_faces(
         raise ValueError(f"view must be 'frontal', 'profile' or 'mixed', got {view!r}")
     if isinstance(num_hypotheses, bool) or not isinstance(num_hypotheses, (int, np.integer)) or num_hypotheses < 1:
         raise ValueError(f"num_hypotheses must be a positive integer, got {num_hypotheses!r}")
+    for name, value in (("shape_sd", shape_sd), ("point_sd", point_sd)):
+        if not (np.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be a finite number ≥ 0, got {value!r}")
     rng = np.random.default_rng([int(x) for x in seed])
     n, H = int(num_faces), int(num_hypotheses)
 
@@ -152,7 +158,7 @@ def simulate_faces(
     roll = np.deg2rad(rng.uniform(-roll_deg, roll_deg, n))
 
     base = generic_face().points  # (5, 3)
-    pts = base[None] * (1.0 + shape_sd * rng.standard_normal((n, 1, 3))) + 0.002 * rng.standard_normal((n, 5, 3))
+    pts = base[None] * (1.0 + shape_sd * rng.standard_normal((n, 1, 3))) + point_sd * rng.standard_normal((n, 5, 3))
     pts[:, :2] -= pts[:, :2].mean(axis=1, keepdims=True) - base[:2].mean(axis=0)  # eye midpoint stays at origin
     R = R_OPTICAL_FROM_FRONTAL @ rotation_frontal_from_head(yaw, pitch, roll)  # (n, 3, 3)
     ipd = np.linalg.norm(pts[:, 1] - pts[:, 0], axis=-1)

@@ -32,7 +32,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxgaze.vision.images import to_gray_uint8
+from jaxgaze.vision.images import rotation_about, to_gray_uint8, warp_affine
 
 __all__ = ["EyeBox", "FaceBox", "detect_eyes", "detect_faces"]
 
@@ -42,6 +42,11 @@ _CASCADE_FILES = {
     "frontal": "haarcascade_frontalface_alt2.xml",
     "profile": "haarcascade_profileface.xml",
     "eye": "haarcascade_eye.xml",
+    # facial-feature cascades (jaxgaze.facial.image_features)
+    "eye_glasses": "haarcascade_eye_tree_eyeglasses.xml",
+    "lefteye_2splits": "haarcascade_lefteye_2splits.xml",
+    "righteye_2splits": "haarcascade_righteye_2splits.xml",
+    "smile": "haarcascade_smile.xml",
 }
 _CASCADES: dict = {}  # name -> cv2.CascadeClassifier, loaded once
 
@@ -65,6 +70,12 @@ class FaceBox(NamedTuple):
     pointing to −x) or ``"profile_right"`` (towards +x). ``score`` is the cascade's
     neighbour count: how many raw detection windows (over positions and scales)
     OpenCV merged into this box; more is more confident (at least 5).
+
+    ``rotation`` (radians) is non-zero for a face found in a rotated copy of the image
+    (``detect_faces(..., rotations_deg=...)``): the face's box is the axis-aligned box
+    ``x, y, width, height`` turned about its centre by ``rotation``, measured from the
+    image's +x axis towards +y (clockwise on screen, as ``y`` points down). The face
+    is upright in the image turned the other way about that centre.
     """
 
     x: float
@@ -73,6 +84,11 @@ class FaceBox(NamedTuple):
     height: float
     kind: str
     score: float
+    rotation: float = 0.0  # radians; the box turned by this about its centre (see above)
+
+    @property
+    def centre(self) -> tuple[float, float]:
+        return (self.x + 0.5 * self.width, self.y + 0.5 * self.height)
 
 
 class EyeBox(NamedTuple):
@@ -194,7 +210,12 @@ def _parse_kinds(kinds) -> tuple[str, ...]:
 
 
 def detect_faces(
-    image, *, kinds=("frontal", "profile"), min_size_px: float = 12, upsample: float | None = None
+    image,
+    *,
+    kinds=("frontal", "profile"),
+    min_size_px: float = 12,
+    upsample: float | None = None,
+    rotations_deg=(0.0,),
 ) -> list[FaceBox]:
     """Faces in ``image`` found by OpenCV's Viola–Jones Haar cascades, best first.
 
@@ -214,6 +235,12 @@ def detect_faces(
     The profile cascade is about four times slower than the frontal one: pass
     ``kinds=("frontal",)`` when speed matters (the paper starts from a frontal face).
 
+    ``rotations_deg``: in-plane angles to search. The cascades only find faces within
+    about ±10° of upright; e.g. ``(0, -15, 15)`` also runs them on the image turned
+    by ∓15° about its centre (on a canvas large enough to keep every pixel), and a face
+    found there gets ``rotation = ±15°`` (in radians). Boxes from different angles are
+    merged by the same suppression, on their unrotated boxes; upright wins ties.
+
     Returns a list of :class:`FaceBox` sorted by ``score`` (neighbour count)
     descending, frontal before profile on ties; ``[]`` when there is no face,
     including for a blank image.
@@ -222,20 +249,48 @@ def detect_faces(
     gray = to_gray_uint8(image, "image")
     if not (isinstance(min_size_px, numbers.Real) and math.isfinite(min_size_px) and min_size_px >= 0):
         raise ValueError(f"min_size_px must be a non-negative number, got {min_size_px!r}")
-    big, sx, sy, pad = _prepare(gray, upsample)
-    min_size = max(1, math.ceil(min_size_px * min(sx, sy)))
-    found = []
-    if "frontal" in wanted:
-        found += [(*b, "frontal") for b in _run(_cascade("frontal"), big, min_size)]
-    if "profile_left" in wanted:
-        found += [(*b, "profile_left") for b in _run(_cascade("profile"), big, min_size)]
-    if "profile_right" in wanted:
-        found += [(*b, "profile_right") for b in _run(_cascade("profile"), big, min_size, mirrored=True)]
-    found.sort(key=lambda b: (-b[4], FACE_KINDS.index(b[5]), b[1], b[0]))
-    return [
-        FaceBox((x - pad) / sx, (y - pad) / sy, w / sx, h / sy, kind, score)
-        for x, y, w, h, score, kind in _nms(found)
-    ]
+    angles = _parse_rotations(rotations_deg)
+    found = []  # (x, y, w, h, score, kind, rotation) in the input image's pixels
+    for angle in angles:
+        rotated, to_image = _rotated(gray, angle)
+        big, sx, sy, pad = _prepare(rotated, upsample)
+        min_size = max(1, math.ceil(min_size_px * min(sx, sy)))
+        boxes = []
+        if "frontal" in wanted:
+            boxes += [(*b, "frontal") for b in _run(_cascade("frontal"), big, min_size)]
+        if "profile_left" in wanted:
+            boxes += [(*b, "profile_left") for b in _run(_cascade("profile"), big, min_size)]
+        if "profile_right" in wanted:
+            boxes += [(*b, "profile_right") for b in _run(_cascade("profile"), big, min_size, mirrored=True)]
+        for x, y, w, h, score, kind in boxes:
+            x, y, w, h = (x - pad) / sx, (y - pad) / sy, w / sx, h / sy
+            cx, cy = to_image @ (x + 0.5 * w, y + 0.5 * h, 1.0)
+            found.append((cx - 0.5 * w, cy - 0.5 * h, w, h, score, kind, math.radians(angle)))
+    found.sort(key=lambda b: (-b[4], abs(b[6]), FACE_KINDS.index(b[5]), b[1], b[0]))
+    return [FaceBox(x, y, w, h, kind, score, rotation) for x, y, w, h, score, kind, rotation in _nms(found)]
+
+
+def _parse_rotations(rotations_deg) -> tuple[float, ...]:
+    try:
+        angles = tuple(float(a) for a in np.atleast_1d(np.asarray(rotations_deg, float)))
+    except (TypeError, ValueError):
+        raise ValueError(f"rotations_deg must be a sequence of angles in degrees, got {rotations_deg!r}") from None
+    if not angles or not all(math.isfinite(a) and -90.0 <= a <= 90.0 for a in angles):
+        raise ValueError(f"rotations_deg must be a non-empty sequence of finite angles in [-90, 90], got {rotations_deg!r}")
+    return tuple(dict.fromkeys(angles))
+
+
+def _rotated(gray: np.ndarray, angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """``gray`` turned by ``-angle_deg`` (so a face turned by ``+angle_deg`` stands upright)
+    on a canvas that keeps every pixel, and the 2×3 map from its coordinates back to ``gray``'s."""
+    if angle_deg == 0.0:
+        return gray, np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    h, w = gray.shape
+    t = math.radians(angle_deg)
+    new_w = math.ceil(w * abs(math.cos(t)) + h * abs(math.sin(t)))
+    new_h = math.ceil(w * abs(math.sin(t)) + h * abs(math.cos(t)))
+    forward, backward = rotation_about((w / 2, h / 2), t, (new_w / 2, new_h / 2))
+    return warp_affine(gray, forward, (new_w, new_h)), backward
 
 
 def detect_eyes(image, face: FaceBox, *, upsample: float | None = None) -> list[EyeBox]:

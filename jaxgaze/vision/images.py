@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["check_image", "to_float", "to_gray_float", "to_gray_uint8", "to_rgb_float"]
+__all__ = ["check_image", "rotation_about", "to_float", "to_gray_float", "to_gray_uint8", "to_rgb_float", "warp_affine"]
 
 _ALLOWED_DTYPES = (np.uint8, np.float32, np.float64)
 
@@ -84,3 +84,36 @@ def to_gray_uint8(image, name: str = "image", *, min_size: int = 1) -> np.ndarra
             return cv2.cvtColor(np.ascontiguousarray(array), cv2.COLOR_RGB2GRAY)
         return array
     return np.clip(np.rint(to_gray_float(array, name) * 255.0), 0, 255).astype(np.uint8)
+
+
+def warp_affine(image: np.ndarray, affine, size: tuple[int, int]) -> np.ndarray:
+    """``cv2.warpAffine`` for a 2×3 map ``affine`` from ``image``'s coordinates to the
+    output's, both in our frame (pixel centres at ``+½``); output ``size = (width, height)``,
+    bilinear, border replicated.
+
+    OpenCV puts pixel centres at integers, so ``q = A p + b`` in our coordinates is
+    ``A p' + (b + A·(½, ½) − ½)`` in OpenCV's; without that shift a warp and its
+    mirror image disagree by half a pixel.
+    """
+    import cv2
+
+    M = np.asarray(affine, float)
+    if M.shape != (2, 3) or not np.all(np.isfinite(M)):
+        raise ValueError(f"affine must be a finite 2x3 matrix, got shape {M.shape}")
+    shifted = np.hstack([M[:, :2], (M[:, 2] + M[:, :2] @ [0.5, 0.5] - 0.5)[:, None]])
+    return cv2.warpAffine(image, shifted, (int(size[0]), int(size[1])), flags=cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REPLICATE)
+
+
+def rotation_about(centre, angle: float, new_centre=None) -> tuple[np.ndarray, np.ndarray]:
+    """2×3 maps ``(forward, backward)``: ``forward`` turns the image by ``−angle``
+    (radians, measured from +x towards +y) about ``centre`` and moves ``centre`` to
+    ``new_centre`` (default: it stays); ``backward`` undoes it. A feature turned by
+    ``+angle`` in the image stands upright after ``forward``."""
+    c, s = np.cos(angle), np.sin(angle)
+    R = np.array([[c, s], [-s, c]])
+    centre = np.asarray(centre, float)
+    new_centre = centre if new_centre is None else np.asarray(new_centre, float)
+    forward = np.hstack([R, (new_centre - R @ centre)[:, None]])
+    backward = np.hstack([R.T, (centre - R.T @ new_centre)[:, None]])
+    return forward, backward
