@@ -22,7 +22,7 @@
 from jaxgaze.facial.chain import ChainResult, run_chain, sweep_threshold, tune_threshold
 from jaxgaze.facial.control import ESCTrajectory, extremum_seeking
 from jaxgaze.facial.gmm import GMMFit, PointEstimate, fit_gmm, localize_point
-from jaxgaze.facial.face_model import FEATURES, POINTS, R_OPTICAL_FROM_FRONTAL, FaceModel, generic_face, mouth_corners
+from jaxgaze.facial.face_model import FACE_SHAPE_SD, FEATURES, POINTS, R_OPTICAL_FROM_FRONTAL, FaceModel, generic_face, mouth_corners
 from jaxgaze.facial.image_features import (
     FaceNotFoundError,
     FeatureTemplates,
@@ -60,6 +60,7 @@ __all__ = [
     "PointEstimate",
     "fit_gmm",
     "localize_point",
+    "FACE_SHAPE_SD",
     "FEATURES",
     "POINTS",
     "R_OPTICAL_FROM_FRONTAL",

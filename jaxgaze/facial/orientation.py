@@ -322,6 +322,15 @@ def gee_cipolla_covariance(
 # PnP
 
 
+def _shape_px(shape_sd, focal: float, model: FaceModel, depth: float) -> float:
+    """``shape_sd`` frontal eye distances in pixels at ``depth`` (0 when ``shape_sd`` is 0)."""
+    shape_sd = float(shape_sd)
+    if not (np.isfinite(shape_sd) and shape_sd >= 0):
+        raise ValueError(f"shape_sd must be a finite number ≥ 0, got {shape_sd}")
+    eye_distance = float(np.linalg.norm(model.points[1] - model.points[0]))
+    return shape_sd * focal * eye_distance / depth
+
+
 class HeadOrientation(NamedTuple):
     """One head pose from :func:`orientation_pnp` (NumPy float64).
 
@@ -368,6 +377,7 @@ def orientation_pnp(
     image_size=None,
     model: FaceModel | None = None,
     pixel_sigma: float | None = None,
+    shape_sd: float = 0.0,
 ) -> HeadOrientation:
     """Head pose by ``cv2.solvePnP`` against the generic face, with a Laplace covariance.
 
@@ -380,6 +390,12 @@ def orientation_pnp(
         pixel_sigma: the point noise σ (px). ``None`` estimates it from the residuals,
             ``σ² = Σ r² / (2n − 6)``, which needs ``n ≥ 4`` points and is itself noisy
             with few degrees of freedom: pass the detector's σ for calibrated ellipses.
+        shape_sd: how far a real face's points lie from the generic face's, in frontal
+            eye distances (:data:`~jaxgaze.facial.face_model.FACE_SHAPE_SD` for the
+            simulator's faces). The point noise becomes
+            ``σ² = pixel_sigma² + (shape_sd · f d / t_z)²`` (``d`` the model's eye
+            distance, ``t_z`` the head depth). The residual estimate of σ is used only
+            when neither ``pixel_sigma`` nor ``shape_sd`` is given.
 
     Solver: with ≥ 4 points ``SOLVEPNP_SQPNP``, refined by ``SOLVEPNP_ITERATIVE``
     (Levenberg–Marquardt on the reprojection error). With 3 points OpenCV's
@@ -455,14 +471,16 @@ def orientation_pnp(
         J = np.asarray(_jac(jnp.asarray(params), *args))
     dof = 2 * n - 6
     rss = float(r @ r)
-    if pixel_sigma is None:
+    shape_px = _shape_px(shape_sd, f, m, t[2])
+    if pixel_sigma is None and shape_px == 0.0:
         if dof <= 0:
-            raise ValueError("with 3 points the pose is exactly determined: pass pixel_sigma")
+            raise ValueError("with 3 points the pose is exactly determined: pass pixel_sigma or shape_sd")
         sigma = float(np.sqrt(rss / dof))
     else:
-        sigma = float(pixel_sigma)
-        if not (np.isfinite(sigma) and sigma > 0):
+        sigma_px = 0.0 if pixel_sigma is None else float(pixel_sigma)
+        if pixel_sigma is not None and not (np.isfinite(sigma_px) and sigma_px > 0):
             raise ValueError(f"pixel_sigma must be positive, got {pixel_sigma}")
+        sigma = float(np.hypot(sigma_px, shape_px))
     JtJ = J.T @ J
     if np.linalg.cond(JtJ) > 1e14:
         raise ValueError("degenerate configuration: the pose is not determined by these points")
@@ -488,6 +506,7 @@ def head_orientation_gee_cipolla(
     focal_px: float,
     principal_point,
     pixel_sigma: float,
+    shape_sd: float = 0.0,
     R_m: float | None = None,
     R_n: float | None = None,
     model: FaceModel | None = None,
@@ -497,8 +516,9 @@ def head_orientation_gee_cipolla(
     The rotation is the full one from the normal and the symmetry axis; the head
     origin is the eye midpoint's ray at the weak-perspective depth
     ``Z = L_f / |image eye→mouth length in normalised units|`` (generalised with the
-    slant); ``covariance`` from :func:`gee_cipolla_covariance`. ``pose_covariance``
-    holds that (yaw, pitch) block and NaN elsewhere (not estimated).
+    slant); ``covariance`` from :func:`gee_cipolla_covariance` with the point noise
+    ``σ² = pixel_sigma² + (shape_sd · f d / Z)²`` (as :func:`orientation_pnp`).
+    ``pose_covariance`` holds that (yaw, pitch) block and NaN elsewhere (not estimated).
     """
     m = generic_face() if model is None else model
     r_m, r_n = gee_cipolla_ratios(m)
@@ -506,13 +526,14 @@ def head_orientation_gee_cipolla(
     R_n = r_n if R_n is None else float(R_n)
     R, t = _gee_cipolla_rotation(points_2d, R_m, R_n, m, float(focal_px), principal_point, full=True)
     yaw, pitch, roll = rotation_to_pose(R)
+    sigma = float(np.hypot(float(pixel_sigma), _shape_px(shape_sd, float(focal_px), m, float(t[2]))))
     cov = gee_cipolla_covariance(
-        points_2d, pixel_sigma=pixel_sigma, R_m=R_m, R_n=R_n, model=m, focal_px=focal_px, principal_point=principal_point
+        points_2d, pixel_sigma=sigma, R_m=R_m, R_n=R_n, model=m, focal_px=focal_px, principal_point=principal_point
     )
     cov6 = np.full((6, 6), np.nan)
     cov6[:2, :2] = cov
     p, vis = _check_points(points_2d)
-    return HeadOrientation(R, t, yaw, pitch, roll, cov, cov6, float(pixel_sigma), float("nan"), int(vis.sum()))
+    return HeadOrientation(R, t, yaw, pitch, roll, cov, cov6, sigma, float("nan"), int(vis.sum()))
 
 
 # ---------------------------------------------------------------------------
