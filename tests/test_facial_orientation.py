@@ -374,3 +374,27 @@ def test_shape_sd_errors_and_pixel_equivalent():
     both = orientation_pnp(uv, focal_px=F, principal_point=C, shape_sd=0.05, pixel_sigma=1.0)
     assert both.pixel_sigma == pytest.approx(np.hypot(1.0, expected))
     np.testing.assert_allclose(both.covariance, o.covariance * (1 + 1 / expected**2), rtol=1e-9)
+
+
+def test_facial_gaze_rays_feed_the_concurrence_finder():
+    """Four people seen by one camera all face a common point: their faces' points →
+    PnP → ``to_gaze_rays`` → ``find_concurrences`` puts one concurrence near that point."""
+    import jaxgaze as jg
+
+    rng = np.random.default_rng(7)
+    target = np.array([0.05, 0.10, 0.80])  # optical frame, between the people and the camera
+    heads = np.array([[-0.45, 0.0, 1.6], [0.40, -0.05, 1.5], [0.0, 0.05, 1.9], [0.15, 0.0, 1.3]])
+    orientations = []
+    for head in heads:
+        forward = (target - head) / np.linalg.norm(target - head)
+        up = np.array([0.0, -1.0, 0.0]) - forward * -forward[1]
+        up /= np.linalg.norm(up)
+        R = np.column_stack([forward, np.cross(up, forward), up])  # head (forward, left, up) → optical
+        X = generic_face().points @ R.T + head
+        uv = F * X[:, :2] / X[:, 2:] + np.asarray(C) + 0.5 * rng.standard_normal((5, 2))
+        orientations.append(orientation_pnp(uv, focal_px=F, principal_point=C, pixel_sigma=0.5))
+    rays = to_gaze_rays(orientations, extra_bandwidth=0.02)
+    found = jg.find_concurrences(rays)
+    assert int(found.count) == 1 and int(found.num_rays[0]) == 4
+    truth = R_OURS_FROM_OPENCV @ target
+    assert np.linalg.norm(np.asarray(found.locations[0]) - truth) < 0.1

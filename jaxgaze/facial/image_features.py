@@ -24,10 +24,11 @@ The cascade of :mod:`jaxgaze.facial.chain`, on pixels instead of simulated hypot
 
    with ``ρ`` the template correlation at the hypothesis ``x``, ``n`` the neighbour
    count of a cascade box containing it and ``q = n / (n + 10)`` (``q = 0`` when
-   none does), ``x̂_k`` the feature's place predicted from the face box (learned with
-   the templates), ``d`` the inter-ocular distance the box predicts and ``σ = 0.25``.
-   The box only fixes position and scale to about a quarter of ``d``; the spatial
-   model judges the shape.
+   none does), ``d`` the inter-ocular distance of the scale the hypothesis matched at
+   (the box's prediction times 0.7 … 1.25), ``x̂_k`` the feature's place for that
+   scale (the eye midpoint at its learned place in the box, the feature at its learned
+   offset times ``d``) and ``σ = 0.25``. The box only fixes position and scale to
+   about a quarter of ``d``; the spatial model judges the shape.
 2. **Spatial model** (:func:`jaxgaze.facial.spatial.best_configuration`), trained on
    simulated faces (its shapes are scale-free, so they transfer to any image).
 3. **Point localisation**: a GMM (:func:`jaxgaze.facial.gmm.localize_point`) fitted
