@@ -307,6 +307,7 @@ class _ScaleMaps(NamedTuple):
     factor: float  # scaled px per image px
     origin: np.ndarray  # (2,) image position of the scaled region's top-left corner
     maps: list  # 4 × (Hs, Ws) NCC of the template centred on each pixel (−1 where it does not fit)
+    likelihoods: list  # 4 × max(NCC, 0)^p, zero-padded by _ROI_HALF + 1 on every side
 
 
 def _ncc_maps(gray, face: FaceBox, eye_distance: float, templates: FeatureTemplates) -> list[_ScaleMaps]:
@@ -332,7 +333,8 @@ def _ncc_maps(gray, face: FaceBox, eye_distance: float, templates: FeatureTempla
                 r = cv2.matchTemplate(scaled, patch, cv2.TM_CCOEFF_NORMED)
                 full[h // 2:h // 2 + r.shape[0], w // 2:w // 2 + r.shape[1]] = np.nan_to_num(r, nan=-1.0)
             maps.append(full)
-        out.append(_ScaleMaps(0.5 * (fx + fy), np.array([x0, y0], float), maps))
+        likelihoods = [np.pad(np.clip(m, 0.0, None) ** _LIKELIHOOD_POWER, _ROI_HALF + 1) for m in maps]
+        out.append(_ScaleMaps(0.5 * (fx + fy), np.array([x0, y0], float), maps, likelihoods))
     return out
 
 
@@ -400,11 +402,9 @@ def _cascade_boxes(gray_u8, face: FaceBox, eye_distance: float) -> dict:
 
 def _likelihood_patch(sm: _ScaleMaps, k: int, xy):
     """``((2R+1)², origin_scaled)``: ``max(ρ, 0)^p`` around ``xy`` on the map of feature ``k``."""
-    m = sm.maps[k]
     c, r = np.floor((np.asarray(xy) - sm.origin) * sm.factor).astype(int)
-    pad = _ROI_HALF + 1  # zeros beyond the map's edge
-    padded = np.pad(np.clip(m, 0.0, None) ** _LIKELIHOOD_POWER, pad)
-    patch = padded[r - _ROI_HALF + pad:r + _ROI_HALF + 1 + pad, c - _ROI_HALF + pad:c + _ROI_HALF + 1 + pad]
+    pad = _ROI_HALF + 1  # the likelihood maps' zero border
+    patch = sm.likelihoods[k][r - _ROI_HALF + pad:r + _ROI_HALF + 1 + pad, c - _ROI_HALF + pad:c + _ROI_HALF + 1 + pad]
     return patch, np.array([c - _ROI_HALF, r - _ROI_HALF], float)
 
 
