@@ -64,7 +64,6 @@ from jaxgaze.facial import (
 )
 from jaxgaze.facial.orientation import head_orientation_gee_cipolla
 from jaxgaze.facial.simulate import FOCAL_PX, IMAGE_HEIGHT, IMAGE_WIDTH
-from jaxgaze.vision import detect_faces
 
 THRESHOLDS = np.round(np.arange(0.05, 0.501, 0.05), 2)
 SWEEP_GRID = np.round(np.arange(0.0, 0.901, 0.05), 2)
@@ -89,7 +88,7 @@ def photo_rows():
     own training face, for reference)."""
     from skimage import data
 
-    from jaxgaze.facial.image_features import DETECTION_ROTATIONS_DEG, TEXTURE_POINTS
+    from jaxgaze.facial.image_features import TEXTURE_POINTS, detected_face_at
 
     photos = {}
     try:
@@ -104,14 +103,13 @@ def photo_rows():
         yaw = orientation_pnp(points, focal_px=float(w), image_size=(w, h)).yaw
         truth = points_to_features(points)
         mid = truth[:2].mean(0)
-        boxes = [b for b in detect_faces(image, rotations_deg=DETECTION_ROTATIONS_DEG)
-                 if b.x <= mid[0] <= b.x + b.width and b.y <= mid[1] <= b.y + b.height]
-        box = boxes[0] if boxes else face_box_from_points(points)
+        detected = detected_face_at(image, mid)
+        box = detected or face_box_from_points(points)
         tau = 1.0 / np.linalg.norm(mid - truth[3])
         for method in ("spatial", "independent"):
             r = locate_features(image, box, method=method)
             per = tau * np.linalg.norm(r.features - truth, axis=-1)
-            rows.append((name, np.degrees(yaw), bool(boxes), method, per, float(r.chain.y_f)))
+            rows.append((name, np.degrees(yaw), detected is not None, method, per, float(r.chain.y_f)))
     return rows
 
 

@@ -19,10 +19,9 @@ from jaxgaze.facial import (
     points_to_features,
     train_feature_templates,
 )
-from jaxgaze.facial.image_features import DETECTION_ROTATIONS_DEG, TEXTURE_POINTS
+from jaxgaze.facial.image_features import TEXTURE_POINTS, detected_face_at
 from jaxgaze.facial.photos import ibug_to_points
 from jaxgaze.facial.orientation import orientation_pnp
-from jaxgaze.vision import detect_faces
 from jaxgaze.vision.head_model import load_face_texture
 
 FRONTAL_YAW_DEG = 20.0  # takeo (0°) by the labels' pose
@@ -47,11 +46,8 @@ def _labelled_yaw_deg(image, points) -> float:
 def _face_box(image, points):
     """The detected face at the labelled eyes or, when the detector misses it, the box
     it typically draws around such eyes (flagged)."""
-    mid = points_to_features(points)[:2].mean(0)
-    for box in detect_faces(image, rotations_deg=DETECTION_ROTATIONS_DEG):
-        if box.x <= mid[0] <= box.x + box.width and box.y <= mid[1] <= box.y + box.height:
-            return box, True
-    return face_box_from_points(points), False
+    box = detected_face_at(image, points_to_features(points)[:2].mean(0))
+    return (box, True) if box is not None else (face_box_from_points(points), False)
 
 
 def _per_feature_deviation(true_features, estimated) -> np.ndarray:

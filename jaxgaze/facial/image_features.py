@@ -74,6 +74,7 @@ __all__ = [
     "train_feature_templates",
     "default_templates",
     "default_spatial_model",
+    "detected_face_at",
     "face_box_from_points",
     "feature_hypotheses",
     "locate_features",
@@ -181,11 +182,14 @@ def _patch_at(canvas, centre, size):
     return canvas[r0:r0 + h, c0:c0 + w]
 
 
-def _face_box_for(image, features) -> FaceBox | None:
-    """The detected frontal face box that contains the labelled eye midpoint, if any."""
-    mid = 0.5 * (features[0] + features[1])
-    for box in detect_faces(image, kinds=("frontal",)):
-        if box.x <= mid[0] <= box.x + box.width and box.y <= mid[1] <= box.y + box.height:
+def detected_face_at(image, point, *, kinds=("frontal", "profile"), rotations_deg=DETECTION_ROTATIONS_DEG) -> FaceBox | None:
+    """The best face :func:`~jaxgaze.vision.detect_faces` finds (``kinds``, ``rotations_deg``)
+    whose box, turned by its ``rotation``, contains ``point`` (image px); None if none does."""
+    point = np.asarray(point, float)
+    for box in detect_faces(image, kinds=kinds, rotations_deg=rotations_deg):
+        upright, _ = rotation_about(box.centre, box.rotation)
+        x, y = upright[:, :2] @ point + upright[:, 2]
+        if box.x <= x <= box.x + box.width and box.y <= y <= box.y + box.height:
             return box
     return None
 
@@ -215,7 +219,7 @@ def train_feature_templates(images: Sequence, points: Sequence) -> FeatureTempla
         if pts.shape != (5, 2) or not np.all(np.isfinite(pts)):
             raise ValueError(f"points[{i}] must be a finite (5, 2) array in the order {POINTS}, got shape {pts.shape}")
         feats = points_to_features(pts)
-        box = _face_box_for(image, feats)
+        box = detected_face_at(image, 0.5 * (feats[0] + feats[1]), kinds=("frontal",), rotations_deg=(0.0,))
         if box is not None:
             mid = 0.5 * (feats[0] + feats[1])
             ratios.append(np.hypot(*(feats[1] - feats[0])) / box.width)
@@ -426,6 +430,19 @@ def feature_hypotheses(image, face=None, *, templates: FeatureTemplates | None =
         FaceNotFoundError: ``face`` is None and no face is found.
         ValueError / TypeError: a bad image, face box or ``num_hypotheses``.
     """
+    hyp, face, eye_distance, (patches, origins, pixel, to_image) = _upright_hypotheses(
+        image, face, templates, num_hypotheses)
+    return _hypotheses_in_image(hyp, to_image), face, eye_distance, (patches, origins, pixel, to_image)
+
+
+def _hypotheses_in_image(hyp: Hypotheses, to_image) -> Hypotheses:
+    """Hypotheses from the upright frame to the image (empty slots stay at 0)."""
+    positions = hyp.positions @ to_image[:, :2].T + to_image[:, 2]
+    return hyp._replace(positions=np.where(hyp.confidences[..., None] > 0, positions, 0.0))
+
+
+def _upright_hypotheses(image, face, templates: FeatureTemplates | None, num_hypotheses: int):
+    """:func:`feature_hypotheses` with the positions left in the upright frame."""
     templates = default_templates() if templates is None else templates
     if not (isinstance(num_hypotheses, (int, np.integer)) and 1 <= num_hypotheses <= 8):
         raise ValueError(f"num_hypotheses must be an integer in [1, 8], got {num_hypotheses!r}")
@@ -482,7 +499,6 @@ def feature_hypotheses(image, face=None, *, templates: FeatureTemplates | None =
             patches[k, j] = patch
             origins[k, j] = scales[s].origin + origin_scaled / scales[s].factor
             pixel[k, j] = 1.0 / scales[s].factor
-    positions = np.where(confidences[..., None] > 0, positions @ to_image[:, :2].T + to_image[:, 2], 0.0)
     hyp = Hypotheses(positions, confidences, np.zeros((4, H), bool))
     return hyp, face, eye_distance, (patches, origins, pixel, to_image)
 
@@ -529,21 +545,21 @@ def locate_features(
     threshold = float(threshold)
     if not math.isfinite(threshold):
         raise ValueError(f"threshold must be finite, got {threshold}")
-    hyp, face, eye_distance, (patches, origins, pixel, to_image) = feature_hypotheses(
-        image, face, templates=templates, num_hypotheses=num_hypotheses
+    hyp, face, eye_distance, (patches, origins, pixel, to_image) = _upright_hypotheses(
+        image, face, templates, num_hypotheses
     )
     if spatial_model is None:
         spatial_model = default_spatial_model("frontal" if face.kind == "frontal" else "mixed")
     model = spatial_model
     loc = _localise_slots(jnp.asarray(patches), jnp.asarray(origins), jnp.asarray(pixel))
     # the spatial model scores shapes in image orientation: search in the upright frame
-    A, b = to_image[:, :2], to_image[:, 2]
-    positions_up = np.where(hyp.confidences[..., None] > 0, (hyp.positions - b) @ np.linalg.inv(A).T, 0.0)
     combos = jnp.asarray(enumerate_combinations(num_hypotheses))
-    P, C = jnp.asarray(positions_up), jnp.asarray(hyp.confidences)
+    P, C = jnp.asarray(hyp.positions), jnp.asarray(hyp.confidences)
     chain = _select(P, C, loc, jnp.asarray(threshold, P.dtype), model, combos, method)
     chain = ChainResult(*(np.asarray(a) for a in chain))
+    A, b = to_image[:, :2], to_image[:, 2]
     chain = chain._replace(points=chain.points @ A.T + b, point_cov=A @ chain.point_cov @ A.T)
+    hyp = _hypotheses_in_image(hyp, to_image)
     feats = chain.points
     points = np.full((5, 2), np.nan)
     points[:3] = feats[:3]
