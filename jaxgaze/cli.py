@@ -406,7 +406,9 @@ def build_parser() -> argparse.ArgumentParser:
                                "simulator's camera at twice its 320 x 240), 10 lead-in frames of eye contact first")
     fit_gaze.add_argument("--demo-frames", type=_int_at_least(1), default=100, metavar="N",
                           help="session frames in --demo-video after the lead-in, at most a session's (default 100)")
-    fit_gaze.add_argument("-q", "--quiet", action="store_true", help="no summary line on stderr")
+    fit_gaze.add_argument("-q", "--quiet", action="store_true",
+                          help="no progress bar and no summary line on stderr (the bar is also off when stderr is "
+                               "not a terminal)")
     fit_gaze.set_defaults(func=_cmd_fit_gaze)
     return parser
 
@@ -1827,8 +1829,10 @@ def _cmd_fit_gaze(args) -> int:
         raise CLIError(str(error)) from None
     num_train = args.people * args.sessions
     X, f1, f2 = training_data(sessions, range(num_train), args.max_frames)
-    fitter = fit_gaze_regression if args.method == "gp" else fit_gaze_regression_nn
-    model = fitter(X, f1, f2, key=key_fit)
+    if args.method == "gp":
+        model = fit_gaze_regression(X, f1, f2, key=key_fit, progress=_progress(args))
+    else:
+        model = fit_gaze_regression_nn(X, f1, f2, key=key_fit)
     converged = bool(model.converged) if args.method == "gp" else True
     metadata = {
         "focal_px": float(sessions[0].focal_px),

@@ -172,3 +172,27 @@ def test_fit_gaze_errors(tmp_path, capsys):
            "demo.mov")
     _fails(capsys, ["fit-gaze", "--output", tmp_path / "no" / "gp.json"], out, "directory does not exist")
     _fails(capsys, ["fit-gaze", "--output", out, "--duration", "0.1"], out, "fewer than 2 frames")
+
+
+def test_fit_gaze_progress_bar_on_tty(tmp_path, capsys, monkeypatch):
+    """The GP fits show their progress bar when stderr is a terminal, not with -q (and the model is written)."""
+    import sys
+
+    import jaxgaze.gp.regression as regression
+
+    calls, real = [], regression.fit_gaze_regression
+
+    def recording(*args, **kwargs):
+        calls.append(kwargs["progress"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(regression, "fit_gaze_regression", recording)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    out = tmp_path / "gp.json"
+    for quiet in ([], ["-q"]):
+        status, _, stderr = run_main(capsys, ["fit-gaze", "--output", out, "--people", "1", "--sessions", "1",
+                                              "--duration", "3", *quiet])
+        assert status == 0, stderr
+        assert ("GP fit, stage 1/1 (30 points, float32): " in stderr) == (not quiet), stderr
+    assert calls == [True, False]
+    assert load_gaze_regression(out).direction_gp.X.shape == (30, 3)

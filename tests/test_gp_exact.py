@@ -280,3 +280,43 @@ def test_optimise_reports_the_objective_at_its_optimum(x64):
         fn = exact._objective(template, static, X, y, None)
         assert bool(out.successful[0]) and int(out.steps[0]) > 1
         np.testing.assert_allclose(out.value[0], fn(out.theta[0], None), rtol=1e-10)
+
+
+def test_fit_progress_bar_counts_evaluations_and_changes_nothing(x64, monkeypatch, capsys):
+    from tqdm import tqdm
+
+    from jaxgaze.gp import exact
+
+    class RecordingBar(tqdm):
+        made = []
+
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.descriptions, self.count = [], 0
+            RecordingBar.made.append(self)
+
+        def set_description_str(self, desc=None, refresh=True):
+            self.descriptions.append(desc)
+            super().set_description_str(desc, refresh)
+
+        def update(self, n=1):
+            self.count += n
+            return super().update(n)
+
+    X, y, _ = _data(n=400)  # stages of 64, 256 and 400 points
+    kernel = gp.RBF() + gp.White(0.1)
+    quiet = gp.fit(kernel, X, y, key=jax.random.key(2), subset_size=64)
+    monkeypatch.setattr(exact, "tqdm", RecordingBar)
+    shown = gp.fit(kernel, X, y, key=jax.random.key(2), subset_size=64, progress=True)
+    assert shown.stages == quiet.stages
+    assert float(shown.log_marginal_likelihood) == float(quiet.log_marginal_likelihood)
+    (bar,) = RecordingBar.made
+    assert len(shown.stages) == 3
+    assert bar.descriptions == [f"GP fit, stage {i + 1}/3 ({m} points, {d})" for i, (m, d, _) in enumerate(shown.stages)]
+    # One evaluation per optimiser step, plus each start's own and the float32 re-evaluations.
+    assert sum(s for _, _, s in shown.stages) < bar.count < sum(s for _, _, s in shown.stages) + 20
+    assert "GP fit, stage 3/3 (400 points, float64): " in capsys.readouterr().err
+    assert exact._progress_bar is None
+    # Without progress nothing is written and no bar is made.
+    gp.fit(kernel, X, y, key=jax.random.key(2), subset_size=64)
+    assert len(RecordingBar.made) == 2 and RecordingBar.made[1].disable and capsys.readouterr().err == ""

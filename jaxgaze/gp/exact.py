@@ -35,6 +35,7 @@ from __future__ import annotations
 import enum
 import functools
 import math
+import sys
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -48,6 +49,7 @@ import scipy.linalg
 from jax.flatten_util import ravel_pytree
 from jax.scipy.linalg import cho_solve, solve_triangular
 from jaxtyping import Array, Float, PRNGKeyArray
+from tqdm import tqdm
 
 from jaxgaze.gp.transforms import bound_penalty
 from jaxgaze.gp.kernels import Kernel, _DataStats
@@ -454,15 +456,28 @@ def _data_stats(X: np.ndarray, y: np.ndarray) -> _DataStats:
 # -- the objective and its curvature ----------------------------------------------
 
 
-def _objective(template, static, X, y, jitter):
+_progress_bar = None  # the tqdm bar of the fit running with progress=True, else None
+
+
+def _report_evaluation() -> None:
+    bar = _progress_bar
+    if bar is not None:
+        bar.update(1)
+
+
+def _objective(template, static, X, y, jitter, report: bool = False):
     """``θ ↦ −log p(y | X, θ)`` over the flattened trainable parameters, plus the wall
-    that keeps them inside :data:`~jaxgaze.gp.transforms.FIT_BOUNDS` (zero inside)."""
+    that keeps them inside :data:`~jaxgaze.gp.transforms.FIT_BOUNDS` (zero inside).
+    ``report``: each evaluation advances the progress bar (a ``jax.debug.callback``)."""
     _, unravel = ravel_pytree(template)
 
     stiffness = _WALL_STIFFNESS * X.shape[0]
 
     def fn(theta, args):
-        return -_lml(eqx.combine(unravel(theta), static), X, y, jitter) + bound_penalty(theta, stiffness)
+        value = -_lml(eqx.combine(unravel(theta), static), X, y, jitter) + bound_penalty(theta, stiffness)
+        if report:
+            jax.debug.callback(_report_evaluation)
+        return value
 
     return fn
 
@@ -589,9 +604,10 @@ class _Outcome(NamedTuple):
 
 
 @eqx.filter_jit
-def _optimise(thetas, template, static, X, y, jitter, key, max_steps: int, decrement_tol: float, method: str):
+def _optimise(thetas, template, static, X, y, jitter, key, max_steps: int, decrement_tol: float, method: str,
+              report: bool = False):
     """Minimise −LML of ``(X, y)`` from each row of ``thetas`` (one compiled loop over them)."""
-    fn = _objective(template, static, X, y, jitter)
+    fn = _objective(template, static, X, y, jitter, report)
 
     def fisher(theta):
         return _floored_fisher(theta, template, static, X, jitter, key)
@@ -669,6 +685,7 @@ def fit(
     tol: float = 1e-3,
     jitter=None,
     throw: bool = False,
+    progress: bool = False,
 ) -> FittedGP:
     """Type-II maximum likelihood: kernel parameters maximising the log marginal likelihood.
 
@@ -736,6 +753,9 @@ def fit(
     Returns a :class:`FittedGP`; ``result`` says whether the last stage
     converged (a failed fit is a value); ``throw=True`` raises
     ``RuntimeError`` instead. The whole fit is seeded by ``key``.
+    ``progress=True`` shows a tqdm bar on stderr that counts exact evaluations
+    (one per optimiser step) and names the stage running, with the best log
+    likelihood of each finished stage.
     """
     _check_jitter(jitter)
     X, y = _check_data(X, y)
@@ -789,11 +809,34 @@ def fit(
         noise = perturbation * jax.random.normal(key_perturb, (num_restarts - len(starts), p), dtype)
         starts.extend(theta_data + noise)
 
+    global _progress_bar
+    bar = tqdm(desc="GP fit", disable=not progress, file=sys.stderr, leave=False,
+               bar_format="{desc}: {n_fmt} evaluations [{elapsed}{postfix}]")
+    _progress_bar = bar if progress else None
+    try:
+        stages, theta, result, restart_lml = _run_stages(
+            plan, starts, template, static, X, y, jitter, probe_keys, max_steps, method, subset, stage_tol, bar,
+            bool(progress)
+        )
+    finally:
+        _progress_bar = None
+        bar.close()
+    if theta is None:
+        return _finish(start_kernel, X, y, jitter, FitResult.nonfinite, restart_lml, stages, throw)
+    fitted = eqx.combine(unravel(theta), static)
+    return _finish(fitted, X, y, jitter, result, restart_lml, stages, throw)
+
+
+def _run_stages(plan, starts, template, static, X, y, jitter, probe_keys, max_steps, method, subset, stage_tol, bar,
+                report):
+    """The stages of :func:`fit`: ``(stages, theta or None, result, restart LMLs)``."""
+    n, dtype = X.shape[0], X.dtype
     stages = []
     theta = None
     result = FitResult.nonfinite
     restart_lml = None
     for i, (m, dt) in enumerate(plan):
+        bar.set_description_str(f"GP fit, stage {i + 1}/{len(plan)} ({m} points, {jnp.dtype(dt).name})")
         thetas = jnp.stack(starts) if i == 0 else theta[None]
         for dt in (dt, dtype) if dt != dtype else (dt,):
             # A float32 stage that fails everywhere (K not positive definite in float32)
@@ -810,6 +853,7 @@ def fit(
                 int(max_steps),
                 float(stage_tol(m, dt)),
                 "bfgs" if (m == n and dt == jnp.float64 and len(plan) > 1) else method,
+                report,
             )
             values = np.asarray(out.value, np.float64)  # −LML of the stage
             stages.append((m, jnp.dtype(dt).name, int(np.sum(np.asarray(out.steps)))))
@@ -820,10 +864,11 @@ def fit(
         finite = np.isfinite(values)
         if not finite.any():
             if theta is None:
-                return _finish(start_kernel, X, y, jitter, FitResult.nonfinite, restart_lml, tuple(stages), throw)
+                return tuple(stages), None, FitResult.nonfinite, restart_lml
             result = FitResult.optimiser_failed
             continue
         best = int(np.argmin(np.where(finite, values, np.inf)))
+        bar.set_postfix_str(f"log likelihood {-values[best]:.4f} on {m} points")
         theta = out.theta[best].astype(dtype)
         if bool(out.successful[best]):
             result = FitResult.successful
@@ -831,9 +876,7 @@ def fit(
             result = FitResult.max_steps_reached
         else:
             result = FitResult.optimiser_failed
-
-    fitted = eqx.combine(unravel(theta), static)
-    return _finish(fitted, X, y, jitter, result, restart_lml, tuple(stages), throw)
+    return tuple(stages), theta, result, restart_lml
 
 
 def _finish(kernel, X, y, jitter, result, restart_lml, stages, throw) -> FittedGP:

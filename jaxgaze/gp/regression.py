@@ -124,13 +124,15 @@ def fit_gaze_regression(
     *,
     key,
     ard: bool = False,
+    progress: bool = False,
 ) -> GazeRegression:
     """Fit the ``f1`` (direction) and ``f2`` (depth) GPs by type-II maximum likelihood.
 
     ``features`` are head poses per frame (e.g. :func:`jaxgaze.simulate_tabletop.head_pose_features`:
     pitch, yaw, roll in radians and the head position in metres); ``direction``
     the image-plane gaze angles (radians) and ``depth`` the target rows (px).
-    ``ard`` gives the RQ and arc-sine kernels one lengthscale per feature.
+    ``ard`` gives the RQ and arc-sine kernels one lengthscale per feature;
+    ``progress`` shows :func:`~jaxgaze.gp.fit`'s progress bar for each GP.
     Check :attr:`GazeRegression.converged`, or each GP's ``result``.
     """
     X, f1, f2 = _check_training_data(features, direction, depth)
@@ -139,8 +141,10 @@ def fit_gaze_regression(
     dtype = jnp.asarray(np.zeros(1)).dtype  # float64 under jax_enable_x64, else float32
     Z = jnp.asarray(scaling.apply(X), dtype)
     k1, k2 = jax.random.split(key)
-    gp1 = fit(gaze_direction_kernel(X.shape[1], ard=ard), Z, jnp.asarray(s1.apply(f1), dtype), key=k1)
-    gp2 = fit(target_depth_kernel(X.shape[1], ard=ard), Z, jnp.asarray(s2.apply(f2), dtype), key=k2)
+    gp1 = fit(gaze_direction_kernel(X.shape[1], ard=ard), Z, jnp.asarray(s1.apply(f1), dtype), key=k1,
+              progress=progress)
+    gp2 = fit(target_depth_kernel(X.shape[1], ard=ard), Z, jnp.asarray(s2.apply(f2), dtype), key=k2,
+              progress=progress)
     return GazeRegression(gp1, gp2, scaling, s1, s2)
 
 
