@@ -814,69 +814,57 @@ def fit(
                bar_format="{desc}: {n_fmt} evaluations [{elapsed}{postfix}]")
     _progress_bar = bar if progress else None
     try:
-        stages, theta, result, restart_lml = _run_stages(
-            plan, starts, template, static, X, y, jitter, probe_keys, max_steps, method, subset, stage_tol, bar,
-            bool(progress)
-        )
+        stages = []
+        theta = None
+        result = FitResult.nonfinite
+        restart_lml = None
+        for i, (m, dt) in enumerate(plan):
+            bar.set_description_str(f"GP fit, stage {i + 1}/{len(plan)} ({m} points, {jnp.dtype(dt).name})")
+            thetas = jnp.stack(starts) if i == 0 else theta[None]
+            for dt in (dt, dtype) if dt != dtype else (dt,):
+                # A float32 stage that fails everywhere (K not positive definite in float32)
+                # is rerun in the data dtype.
+                Xs, ys = subset(m, dt)
+                out = _optimise(
+                    thetas.astype(dt),
+                    _cast(template, dt),
+                    _cast(static, dt),
+                    Xs,
+                    ys,
+                    jitter,
+                    probe_keys[i],
+                    int(max_steps),
+                    float(stage_tol(m, dt)),
+                    "bfgs" if (m == n and dt == jnp.float64 and len(plan) > 1) else method,
+                    bool(progress),
+                )
+                values = np.asarray(out.value, np.float64)  # −LML of the stage
+                stages.append((m, jnp.dtype(dt).name, int(np.sum(np.asarray(out.steps)))))
+                if np.isfinite(values).any():
+                    break
+            if i == 0:
+                restart_lml = jnp.asarray(-values, dtype)
+            finite = np.isfinite(values)
+            if not finite.any():
+                if theta is None:
+                    return _finish(start_kernel, X, y, jitter, FitResult.nonfinite, restart_lml, tuple(stages), throw)
+                result = FitResult.optimiser_failed
+                continue
+            best = int(np.argmin(np.where(finite, values, np.inf)))
+            bar.set_postfix_str(f"log likelihood {-values[best]:.4f} on {m} points")
+            theta = out.theta[best].astype(dtype)
+            if bool(out.successful[best]):
+                result = FitResult.successful
+            elif bool(out.max_steps[best]):
+                result = FitResult.max_steps_reached
+            else:
+                result = FitResult.optimiser_failed
     finally:
         _progress_bar = None
         bar.close()
-    if theta is None:
-        return _finish(start_kernel, X, y, jitter, FitResult.nonfinite, restart_lml, stages, throw)
+
     fitted = eqx.combine(unravel(theta), static)
-    return _finish(fitted, X, y, jitter, result, restart_lml, stages, throw)
-
-
-def _run_stages(plan, starts, template, static, X, y, jitter, probe_keys, max_steps, method, subset, stage_tol, bar,
-                report):
-    """The stages of :func:`fit`: ``(stages, theta or None, result, restart LMLs)``."""
-    n, dtype = X.shape[0], X.dtype
-    stages = []
-    theta = None
-    result = FitResult.nonfinite
-    restart_lml = None
-    for i, (m, dt) in enumerate(plan):
-        bar.set_description_str(f"GP fit, stage {i + 1}/{len(plan)} ({m} points, {jnp.dtype(dt).name})")
-        thetas = jnp.stack(starts) if i == 0 else theta[None]
-        for dt in (dt, dtype) if dt != dtype else (dt,):
-            # A float32 stage that fails everywhere (K not positive definite in float32)
-            # is rerun in the data dtype.
-            Xs, ys = subset(m, dt)
-            out = _optimise(
-                thetas.astype(dt),
-                _cast(template, dt),
-                _cast(static, dt),
-                Xs,
-                ys,
-                jitter,
-                probe_keys[i],
-                int(max_steps),
-                float(stage_tol(m, dt)),
-                "bfgs" if (m == n and dt == jnp.float64 and len(plan) > 1) else method,
-                report,
-            )
-            values = np.asarray(out.value, np.float64)  # −LML of the stage
-            stages.append((m, jnp.dtype(dt).name, int(np.sum(np.asarray(out.steps)))))
-            if np.isfinite(values).any():
-                break
-        if i == 0:
-            restart_lml = jnp.asarray(-values, dtype)
-        finite = np.isfinite(values)
-        if not finite.any():
-            if theta is None:
-                return tuple(stages), None, FitResult.nonfinite, restart_lml
-            result = FitResult.optimiser_failed
-            continue
-        best = int(np.argmin(np.where(finite, values, np.inf)))
-        bar.set_postfix_str(f"log likelihood {-values[best]:.4f} on {m} points")
-        theta = out.theta[best].astype(dtype)
-        if bool(out.successful[best]):
-            result = FitResult.successful
-        elif bool(out.max_steps[best]):
-            result = FitResult.max_steps_reached
-        else:
-            result = FitResult.optimiser_failed
-    return tuple(stages), theta, result, restart_lml
+    return _finish(fitted, X, y, jitter, result, restart_lml, tuple(stages), throw)
 
 
 def _finish(kernel, X, y, jitter, result, restart_lml, stages, throw) -> FittedGP:
