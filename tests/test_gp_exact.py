@@ -7,6 +7,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from jax.flatten_util import ravel_pytree
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process import kernels as skk
@@ -318,3 +320,21 @@ def test_fit_progress_bar_counts_evaluations_and_changes_nothing(monkeypatch, ca
     assert shown.stages[0][2] < bar.count <= shown.stages[0][2] + 2 * 2
     assert "GP fit, stage 1/1 (150 points, float32): " in capsys.readouterr().err
     assert exact._progress_bar is None
+
+
+@settings(max_examples=300, deadline=None)
+@given(n=st.integers(2, 100_000), first=st.integers(8, 1024))
+def test_stage_sizes_grow_to_all_data_with_a_last_subset_between_n_over_2_5_and_n_over_1_5(n, first):
+    from jaxgaze.gp.exact import _stage_sizes
+
+    sizes = _stage_sizes(n, first)
+    assert sizes[0] == min(n, first) and sizes[-1] == n
+    assert all(b > a for a, b in zip(sizes, sizes[1:]))
+    assert all(b in (2 * a, 4 * a) for a, b in zip(sizes[:-1], sizes[1:-1]))  # ×4 steps, at most one ×2
+    assert sum(b == 2 * a for a, b in zip(sizes[:-1], sizes[1:-1])) <= 1
+    if len(sizes) > 1:
+        last = sizes[-2]
+        assert len(sizes) == 2 or 1.5 * last <= n  # a grown subset leaves at least a third of the data out
+        # below n/2.5 only when doubling it would pass n/1.5
+        assert 2.5 * last >= n or 2 * last * 1.5 > n
+    assert _stage_sizes(1000, 256) == [256, 512, 1000] and _stage_sizes(2000, 256) == [256, 1024, 2000]
