@@ -251,20 +251,44 @@ def test_fit_float32_data_with_both_methods():
 
 
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
-def test_inverse_from_cholesky_is_the_symmetric_inverse(x64, dtype):
-    from jaxgaze.gp.exact import _inverse_from_cholesky
+def test_upper_inverse_from_cholesky_is_the_triangle_of_the_inverse(x64, dtype):
+    from jaxgaze.gp.exact import _trace_weights, _upper_inverse_from_cholesky
 
     rng = np.random.default_rng(3)
     A = rng.normal(size=(57, 57))
     K = A @ A.T + 57 * np.eye(57)
     L = jnp.linalg.cholesky(jnp.asarray(K, dtype))
-    inv = np.asarray(jax.jit(_inverse_from_cholesky)(L))
-    assert inv.dtype == np.dtype(dtype)
-    np.testing.assert_array_equal(inv, inv.T)
-    np.testing.assert_allclose(inv, np.linalg.inv(K), rtol=1e-4 if dtype == "float32" else 1e-10, atol=1e-8)
-    assert np.isnan(np.asarray(_inverse_from_cholesky(L.at[5, 5].set(0.0)))).all()
-    batched = jax.vmap(_inverse_from_cholesky)(jnp.stack([L, 2 * L]))
-    np.testing.assert_allclose(batched[1], inv / 4, rtol=1e-5 if dtype == "float32" else 1e-12)
+    upper = np.asarray(jax.jit(_upper_inverse_from_cholesky)(L))
+    assert upper.dtype == np.dtype(dtype)
+    tol = dict(rtol=1e-4, atol=1e-8) if dtype == "float32" else dict(rtol=1e-10, atol=1e-14)
+    np.testing.assert_array_equal(np.tril(upper, -1), 0.0)
+    np.testing.assert_allclose(upper, np.triu(np.linalg.inv(K)), **tol)
+    # The trace weights give tr(K⁻¹ S) for a symmetric S.
+    S = rng.normal(size=(57, 57))
+    S = S + S.T
+    weights = np.asarray(_trace_weights(jnp.asarray(upper)))
+    np.testing.assert_allclose(np.vdot(weights, S), np.trace(np.linalg.solve(K, S)), **tol)
+    assert np.isnan(np.asarray(_upper_inverse_from_cholesky(L.at[5, 5].set(0.0)))).all()
+    batched = jax.vmap(_upper_inverse_from_cholesky)(jnp.stack([L, 2 * L]))
+    np.testing.assert_allclose(batched[1], upper / 4, rtol=1e-5 if dtype == "float32" else 1e-12)
+
+
+def test_lml_hessian_matches_finite_differences_of_the_gradient(x64):
+    # Second derivatives go through the triangle's own JVP rule (forward over reverse).
+    X, y, _ = _data(n=40)
+    kernel = gp.RationalQuadratic(0.8, 0.7, 1.5) + gp.Linear(0.5, 0.3) + gp.White(0.05)
+    template, static = eqx.partition(kernel, kernel.trainable_filter())
+    theta, unravel = ravel_pytree(template)
+
+    def lml(t):
+        return gp.log_marginal_likelihood(eqx.combine(unravel(t), static), X, y)
+
+    hessian = np.asarray(jax.hessian(lml)(theta))
+    grad = jax.grad(lml)
+    h = 1e-5
+    columns = [(np.asarray(grad(theta + h * e)) - np.asarray(grad(theta - h * e))) / (2 * h) for e in np.eye(theta.size)]
+    np.testing.assert_allclose(hessian, np.stack(columns, axis=1), rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(hessian, hessian.T, rtol=1e-10, atol=1e-10)
 
 
 def test_optimise_reports_the_objective_at_its_optimum(x64):

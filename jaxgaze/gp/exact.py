@@ -208,7 +208,7 @@ def _host_potri(bits: np.ndarray, dtype) -> np.ndarray:
     ``potri`` (``lower=1``) works in place on one Fortran-ordered copy of ``L``; that
     array's memory, read row-major, is its transpose: ``K⁻¹``'s lower triangle lands in
     the upper one, and the strict lower triangle holds ``L``'s strict upper (zero). The
-    caller mirrors the triangle (one pass fused by XLA). The earlier version also let
+    caller uses that triangle as it is. The earlier version also let
     f2py make that copy but then spent three more n² passes and two copies in NumPy
     (about 40 % of the callback's time at n = 1000); the values are bit-identical.
     """
@@ -223,33 +223,45 @@ def _host_potri(bits: np.ndarray, dtype) -> np.ndarray:
 
 
 @jax.custom_jvp
-def _inverse_from_cholesky(L: Float[Array, "n n"]) -> Float[Array, "n n"]:
-    """``K⁻¹`` from the lower Cholesky factor of ``K``.
+def _upper_inverse_from_cholesky(L: Float[Array, "n n"]) -> Float[Array, "n n"]:
+    """``triu(K⁻¹)`` (zeros below the diagonal) from the lower Cholesky factor of ``K``.
 
     On CPU this calls LAPACK ``potri`` through SciPy (``2n³/3`` flops, about a
     third of ``cho_solve(L, I)``, which XLA:CPU runs as two full triangular
-    solves); elsewhere it is ``cho_solve(L, I)``. NaN when ``L`` is not a valid
-    factor. The callback exchanges the matrices as ``uint32`` bit patterns:
-    JAX hands callbacks arrays canonicalised by the *calling thread's* x64
-    setting, which under the ``jax.enable_x64`` context manager would
-    silently round float64 to float32.
+    solves); elsewhere it is ``triu(cho_solve(L, I))``. NaN when ``L`` is not a
+    valid factor. The gradient of the LML needs ``K⁻¹`` only through
+    ``tr(K⁻¹ S)`` for symmetric ``S``, which the triangle gives without the
+    transposing pass that would mirror it (:func:`_gaussian_lml`). The callback
+    exchanges the matrices as ``uint32`` bit patterns: JAX hands callbacks arrays
+    canonicalised by the *calling thread's* x64 setting, which under the
+    ``jax.enable_x64`` context manager would silently round float64 to float32.
     """
     if jax.default_backend() == "cpu":
         bits = jax.lax.bitcast_convert_type(L, jnp.uint32)
         shape = jax.ShapeDtypeStruct(bits.shape, jnp.uint32)
         callback = functools.partial(_host_potri, dtype=np.dtype(L.dtype))
         out = jax.pure_callback(callback, shape, bits, vmap_method="sequential")
-        upper = jax.lax.bitcast_convert_type(out, L.dtype)
-        return jnp.triu(upper) + jnp.triu(upper, 1).T
-    return cho_solve((L, True), jnp.eye(L.shape[0], dtype=L.dtype))
+        return jax.lax.bitcast_convert_type(out, L.dtype)
+    return jnp.triu(cho_solve((L, True), jnp.eye(L.shape[0], dtype=L.dtype)))
 
 
-@_inverse_from_cholesky.defjvp
-def _inverse_from_cholesky_jvp(primals, tangents):
+def _symmetric_from_upper(U: Float[Array, "n n"]) -> Float[Array, "n n"]:
+    return U + jnp.triu(U, 1).T
+
+
+@_upper_inverse_from_cholesky.defjvp
+def _upper_inverse_from_cholesky_jvp(primals, tangents):
+    # d K⁻¹ = −K⁻¹ dK K⁻¹ with dK = dL Lᵀ + L dLᵀ (used by second derivatives only).
     (L,), (dL,) = primals, tangents
-    K_inv = _inverse_from_cholesky(L)
+    U = _upper_inverse_from_cholesky(L)
+    K_inv = _symmetric_from_upper(U)
     dK = dL @ L.T + L @ dL.T
-    return K_inv, -K_inv @ dK @ K_inv
+    return U, jnp.triu(-K_inv @ dK @ K_inv)
+
+
+def _trace_weights(U: Float[Array, "n n"]) -> Float[Array, "n n"]:
+    """``M = 2·triu(K⁻¹) − diag(K⁻¹)`` from ``U = triu(K⁻¹)``: ``vdot(M, S) = tr(K⁻¹ S)`` for symmetric ``S``."""
+    return U * (2.0 - jnp.eye(U.shape[0], dtype=U.dtype))
 
 
 @jax.custom_jvp
@@ -268,8 +280,8 @@ def _gaussian_lml_jvp(primals, tangents):
     L = jnp.linalg.cholesky(K)
     alpha = cho_solve((L, True), y)
     value = -0.5 * jnp.dot(y, alpha) - jnp.sum(jnp.log(jnp.diagonal(L))) - 0.5 * y.shape[0] * _LOG_2PI
-    K_inv = _inverse_from_cholesky(L)
-    W = jnp.outer(alpha, alpha) - K_inv
+    # tr(K⁻¹ dK) as vdot with the triangle's weights: dK is symmetric (K(θ) is).
+    W = jnp.outer(alpha, alpha) - _trace_weights(_upper_inverse_from_cholesky(L))
     return value, 0.5 * jnp.vdot(W, dK) - jnp.dot(alpha, dy)
 
 
