@@ -266,7 +266,11 @@ def _trace_weights(U: Float[Array, "n n"]) -> Float[Array, "n n"]:
 
 @jax.custom_jvp
 def _gaussian_lml(K: Float[Array, "n n"], y: Float[Array, " n"]) -> Float[Array, ""]:
-    """log N(y | 0, K) by Cholesky; NaN when K is not positive definite."""
+    """log N(y | 0, K) by Cholesky; NaN when K is not positive definite.
+
+    Its derivative assumes a symmetric tangent ``dK`` (as for any ``K(θ)`` built by a
+    kernel): the trace term is taken from ``triu(K⁻¹)`` alone (:func:`_trace_weights`).
+    """
     L = jnp.linalg.cholesky(K)
     alpha = cho_solve((L, True), y)
     return -0.5 * jnp.dot(y, alpha) - jnp.sum(jnp.log(jnp.diagonal(L))) - 0.5 * y.shape[0] * _LOG_2PI
