@@ -65,7 +65,6 @@ BIAS_FRAME_COLUMNS = ("frame", "time", "partner_speaking", "head_target_angle_de
                       "error_uncorrected_deg", "error_deg", "looking", "probability")
 
 _DEFAULT_BANDWIDTH = 0.05
-_DEFAULT_CHUNK = 32
 _DEFAULT_SAMPLES = 500
 _BIAS_SILENT_FRAMES = 256  # at most this many silent-partner frames for the Bayes contrast
 #: ``bias --frames`` defaults: the paper's N (Mean 20, Med 40); the mixture uses more.
@@ -205,9 +204,9 @@ def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("-q", "--quiet", action="store_true",
                         help="no progress bar (it is also off when stderr is not a terminal)")
-    common.add_argument("--chunk", type=_int_at_least(1), default=_DEFAULT_CHUNK, metavar="F",
-                        help=f"frames per compiled batch; shorter recordings are padded to F "
-                             f"(default {_DEFAULT_CHUNK})")
+    common.add_argument("--chunk", type=_int_at_least(1), default=None, metavar="F",
+                        help="frames per compiled batch; shorter recordings are padded to F (default: the "
+                             "largest that keeps XLA:CPU clear of its LAPACK deadlock, at most 64)")
 
     parser = argparse.ArgumentParser(
         prog="jaxgaze",
@@ -760,51 +759,6 @@ def _read_poses(path: str):
 
 
 # ---------------------------------------------------------------------------
-# Computation
-
-
-def _pad_frames(rays, size: int):
-    """Pad a ``(T, N)`` recording to ``size`` frames with empty (fully masked) frames."""
-    import equinox as eqx
-    import jax
-    import jax.numpy as jnp
-
-    extra = size - rays.batch_shape[0]
-    padded = jax.tree_util.tree_map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], extra, axis=0)]), rays)
-    mask = padded.mask.at[-extra:].set(False)
-    return eqx.tree_at(lambda r: r.mask, padded, mask)
-
-
-def find_concurrences_in_chunks(rays, *, chunk: int = _DEFAULT_CHUNK, progress: bool = False,
-                                desc: str = "concurrences", **options):
-    """:func:`~jaxgaze.find_concurrences_over_frames` over a long recording, ``chunk`` frames at a time.
-
-    Every call sees the same ``(chunk, N)`` shape (the last or only chunk is
-    padded with empty frames), so the vmapped computation compiles once per
-    ``(chunk, N)`` and options, whatever the length of the recording. Returns a
-    :class:`~jaxgaze.Concurrences` of host (numpy) arrays, ``(T, K)``.
-    """
-    import numpy as np
-    from tqdm import tqdm
-
-    from jaxgaze.concurrence import Concurrences, find_concurrences_over_frames
-
-    total = rays.batch_shape[0]
-    size = max(1, int(chunk))
-    parts = []
-    with tqdm(total=total, unit="frame", desc=desc, disable=not progress, file=sys.stderr) as bar:
-        for start in range(0, total, size):
-            part = rays[start:start + size]
-            count = part.batch_shape[0]
-            if count < size:
-                part = _pad_frames(part, size)
-            result = find_concurrences_over_frames(part, **options)
-            parts.append(Concurrences(*(np.asarray(a)[:count] for a in result)))
-            bar.update(count)
-    return Concurrences(*(np.concatenate(fields, axis=0) for fields in zip(*parts)))
-
-
-# ---------------------------------------------------------------------------
 # Output
 
 
@@ -861,6 +815,8 @@ def _check_output_directory(path: str, what: str = "output") -> None:
 
 
 def _cmd_concurrences(args) -> int:
+    from jaxgaze.concurrence import find_concurrences_over_frames
+
     if args.calibration:
         calibrations = {}
         for path in args.calibration:
@@ -875,10 +831,10 @@ def _cmd_concurrences(args) -> int:
     _check_output_directory(args.out)
     try:
         bounds = None if args.bounds is None else [args.bounds[:3], args.bounds[3:]]
-        result = find_concurrences_in_chunks(rays, chunk=args.chunk, progress=_progress(args),
-                                             min_rays=args.min_rays, bounds=bounds)
+        result = find_concurrences_over_frames(rays, frames_per_batch=args.chunk, progress=_progress(args),
+                                               min_rays=args.min_rays, bounds=bounds)
     except ValueError as error:
-        raise CLIError(str(error), args.input) from None
+        raise CLIError(str(error).replace("frames_per_batch", "--chunk"), args.input) from None
     with _atomic_output(args.out) as handle:
         rows = write_concurrences_csv(handle, frame_ids, result)
     if not args.quiet:
@@ -1061,7 +1017,7 @@ def _cmd_demo(args) -> int:
     import jax
     import numpy as np
 
-    from jaxgaze.concurrence import track_concurrences
+    from jaxgaze.concurrence import find_concurrences_over_frames, track_concurrences
     from jaxgaze.metrics import evaluate, match_concurrences
     from jaxgaze.simulate import simulate_scene
 
@@ -1074,8 +1030,11 @@ def _cmd_demo(args) -> int:
     clock = time.perf_counter()
     # People look at things above the floor (z = 0 in the simulated world frame).
     above_floor = [[-math.inf, -math.inf, 0.0], [math.inf, math.inf, math.inf]]
-    concurrences = find_concurrences_in_chunks(scene.rays, chunk=args.chunk, progress=progress, desc=scene.name,
-                                               bounds=above_floor)
+    try:
+        concurrences = find_concurrences_over_frames(scene.rays, frames_per_batch=args.chunk, progress=progress,
+                                                     bounds=above_floor)
+    except ValueError as error:
+        raise CLIError(str(error).replace("frames_per_batch", "--chunk")) from None
     tracks = track_concurrences(concurrences)
     t_find = time.perf_counter() - clock
 

@@ -43,6 +43,14 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
+from jaxgaze._batching import (
+    lapack_eigh_cost,
+    lapack_guard_applies,
+    lapack_lu_cost,
+    lapack_qr_cost,
+    lapack_safe_batch,
+    map_in_batches,
+)
 from jaxgaze.geometry import orthonormal_basis
 from jaxgaze.meanshift_kernel import fused_meanshift
 from jaxgaze.rays import GazeRays
@@ -373,6 +381,7 @@ def _concurrences_one_frame(
     max_modes: int,
     prior_scale: float,
     refine_steps: int,
+    modes_per_batch: int,
 ) -> Concurrences:
     n = rays.num_rays
     dtype = rays.origins.dtype
@@ -416,7 +425,14 @@ def _concurrences_one_frame(
     )
     (_, membership, modes, mode_conv, count), _ = jax.lax.scan(visit, init, order)
     valid = jnp.arange(max_modes) < count
-    refine = jax.vmap(lambda m, x0: _refine_and_laplace(rays, m, x0, prior_scale, refine_steps))
+
+    def over_modes(fn, *xs):
+        # Keeps the batched LAPACK calls below the size at which XLA:CPU can deadlock (see _batching).
+        if modes_per_batch >= max_modes:
+            return jax.vmap(fn)(*xs)
+        return jax.lax.map(lambda a: fn(*a), xs, batch_size=modes_per_batch)
+
+    refine = functools.partial(over_modes, lambda m, x0: _refine_and_laplace(rays, m, x0, prior_scale, refine_steps))
     slots = jnp.arange(max_modes)[:, None]
 
     # The mixture mode sits where a subset of rays crosses tightly, so a true
@@ -441,7 +457,7 @@ def _concurrences_one_frame(
     member_mask = member_mask & valid[:, None]
     membership = jnp.where(jnp.any(member_mask, axis=0), jnp.argmax(member_mask, axis=0), -1).astype(jnp.int32)
     locations, covariances = refine(member_mask, second)
-    axes, semi = jax.vmap(lambda x: _region(rays, x))(locations)
+    axes, semi = over_modes(lambda x: _region(rays, x), locations)
     values = jax.vmap(lambda x: _field_value(proj, x))(locations)
 
     def pad(a, fill=0.0):
@@ -472,6 +488,7 @@ _STATIC = (
     "max_modes",
     "prior_scale",
     "refine_steps",
+    "modes_per_batch",
 )
 _one_frame_jit = jax.jit(_concurrences_one_frame, static_argnames=_STATIC)
 # jax.vmap does not forward keyword arguments to in_axes, so wrap explicitly.
@@ -508,9 +525,45 @@ def _options(rays, seed_depths, bounds, min_rays, claim_bandwidths, search_scale
     static = dict(
         min_rays=int(min_rays), claim_bandwidths=float(claim_bandwidths), search_scale=float(search_scale), dominance=float(dominance),
         merge_radius=float(merge_radius), tol=float(tol), max_iter=int(max_iter), max_modes=k,
-        prior_scale=float(prior_scale), refine_steps=int(refine_steps),
+        prior_scale=float(prior_scale), refine_steps=int(refine_steps), modes_per_batch=_batch_plan(n, k)[1],
     )
     return jnp.asarray(depths, dtype), jnp.asarray(box, dtype), static
+
+
+#: Frames per compiled batch on XLA:CPU when the LAPACK bound allows more.
+MAX_FRAMES_PER_BATCH = 64
+
+
+def _lapack_cost_per_mode(n: int) -> int:
+    """Largest LAPACK flop estimate that one mode adds to a batched call.
+
+    The Levenberg–Marquardt step solves the damped ``(3n + 3) × 3`` least-squares
+    system by QR; the covariance takes an LU of a ``3 × 3`` and the region an
+    ``eigh`` of one.
+    """
+    return max(lapack_qr_cost(3 * n + 3, 3), lapack_eigh_cost(3), lapack_lu_cost(3))
+
+
+def _batch_plan(n: int, k: int) -> tuple[int, int]:
+    """``(frames, modes)`` per batched LAPACK call that keep XLA:CPU clear of its deadlock.
+
+    On other backends every frame and mode go in one batch (frames ``0`` means all).
+    """
+    if k == 0 or not lapack_guard_applies():
+        return 0, max(k, 1)
+    per_mode = _lapack_cost_per_mode(n)
+    modes = lapack_safe_batch(per_mode, k)
+    frames = lapack_safe_batch(k * per_mode, MAX_FRAMES_PER_BATCH) if modes == k else 1
+    return frames, modes
+
+
+def _masked_padding(rays: GazeRays, size: int) -> GazeRays:
+    """Pad a ``(B, N)`` slice to ``size`` frames with empty frames (every ray masked)."""
+    extra = size - rays.batch_shape[0]
+    padded = jax.tree_util.tree_map(lambda a: np.concatenate([a, np.repeat(a[-1:], extra, axis=0)]), rays)
+    mask = np.array(padded.mask)
+    mask[-extra:] = False
+    return eqx.tree_at(lambda r: r.mask, padded, mask)
 
 
 def _empty(batch_shape: tuple[int, ...], n: int, dtype) -> Concurrences:
@@ -613,22 +666,48 @@ def find_concurrences_over_frames(
     max_modes: int | None = None,
     prior_scale: float = 100.0,
     refine_steps: int = 64,
+    frames_per_batch: int | None = None,
+    progress: bool = False,
 ) -> Concurrences:
-    """:func:`find_concurrences` for a whole recording, vmapped over frames.
+    """:func:`find_concurrences` for a whole recording, vmapped over batches of frames.
 
     ``rays`` has shape ``(T, N, 3)`` with ``rays.mask`` marking the people
     present in each frame (see :meth:`GazeRays.stack`). The result is padded to
     ``K = max_modes`` (default ``N // min_rays``) modes per frame; ``valid``
-    marks the real ones and ``count`` gives K per frame.
+    marks the real ones and ``count`` gives K per frame. Its arrays are numpy
+    arrays on the host.
+
+    The recording goes through one compiled program of ``frames_per_batch``
+    frames (the last batch is padded with empty frames), so recordings of any
+    length share one compilation. On CPU the default is the largest batch, at
+    most ``MAX_FRAMES_PER_BATCH``, whose batched LAPACK calls stay below the size
+    at which XLA:CPU splits them over its thread pool and can deadlock (see
+    ``docs/runtime.md``); a larger ``frames_per_batch`` is refused there. Batches
+    run on one host thread per core. On GPU every frame goes in one batch.
+    ``progress`` shows a bar of frames done on stderr.
     """
     if not isinstance(rays, GazeRays) or len(rays.batch_shape) != 1:
         shape = rays.batch_shape if isinstance(rays, GazeRays) else None
         raise ValueError(f"find_concurrences_over_frames needs rays of shape (T, N, 3); batch shape is {shape}")
     depths, box, static = _options(rays, seed_depths, bounds, min_rays, claim_bandwidths, search_scale, dominance,
                                    merge_radius, tol, max_iter, max_modes, prior_scale, refine_steps)
-    if static["max_modes"] == 0:
-        return _empty(rays.batch_shape, rays.num_rays, rays.origins.dtype)
-    return _over_frames_jit(rays, depths, box, **static)
+    total = rays.batch_shape[0]
+    if static["max_modes"] == 0 or total == 0:
+        return Concurrences(*(np.asarray(a) for a in _empty(rays.batch_shape, rays.num_rays, rays.origins.dtype)))
+    safe, _ = _batch_plan(rays.num_rays, static["max_modes"])
+    if frames_per_batch is None:
+        batch = safe or total
+    else:
+        if int(frames_per_batch) != frames_per_batch or frames_per_batch < 1:
+            raise ValueError(f"frames_per_batch must be a positive integer, got {frames_per_batch!r}")
+        batch = int(frames_per_batch)
+        if safe and batch > safe:
+            raise ValueError(
+                f"frames_per_batch={batch} is too large on CPU for {rays.num_rays} rays: at most {safe} frames keep "
+                "XLA:CPU's batched LAPACK calls from deadlocking (see docs/runtime.md)"
+            )
+    return map_in_batches(lambda part: _over_frames_jit(part, depths, box, **static), rays, batch,
+                          pad=_masked_padding, progress=progress, desc="concurrences")
 
 
 # ---------------------------------------------------------------------------

@@ -56,7 +56,9 @@ def _one_chain(model, key, model_args, init_params, num_warmup, num_samples, den
 
     _, (z, stats) = jax.lax.scan(step, state, jnp.arange(num_warmup + num_samples))
     z, stats = jax.tree_util.tree_map(lambda a: a[num_warmup:], (z, stats))
-    values = jax.vmap(lambda u: constrain_fn(model, model_args, {}, u, return_deterministic=True))(z)
+    # One draw at a time (lax.map, not vmap): a model's batched LAPACK calls over all draws
+    # can be large enough for XLA:CPU to split them over its thread pool and deadlock (see _batching).
+    values = jax.lax.map(lambda u: constrain_fn(model, model_args, {}, u, return_deterministic=True), z)
     return values, stats
 
 

@@ -1,0 +1,82 @@
+"""Speed of the long-recording path: batched frames (now) against one vmap over the recording (before).
+
+Both run in one child process on the same simulated ``meeting`` recording with
+the default options, after compilation: ``old`` is the former
+``find_concurrences_over_frames``, one vmapped program over all ``T`` frames;
+``new`` is the shipped one, batches of frames small enough for XLA:CPU's LAPACK
+bound, on one host thread per core. The old program can deadlock on XLA:CPU
+(docs/runtime.md), so the child is watched: a child that stops printing for
+``--stall`` seconds is killed, counted as a hang and started again.
+
+    python benchmarks/bench_long_recording.py [--frames 3000] [--repeats 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
+from deadlock_tools import run_until_stalled  # noqa: E402
+
+CHILD = r"""
+import sys, time
+import jax, numpy as np
+from jaxgaze.simulate import simulate_scene
+from jaxgaze import concurrence
+
+frames, repeats = int(sys.argv[1]), int(sys.argv[2])
+scene = simulate_scene(jax.random.key(4), "meeting", num_frames=frames)
+rays = scene.rays
+depths, box, static = concurrence._options(rays, concurrence.DEFAULT_SEED_DEPTHS, None, 2, 3.0, 2.0, 0.9, 0.3,
+                                           1e-4, 500, None, 100.0, 64)
+whole = dict(static, modes_per_batch=static["max_modes"])
+start = time.perf_counter()
+old_program = concurrence._over_frames_jit.lower(rays, depths, box, **whole).compile()
+print(f"compiled old {time.perf_counter() - start:.1f}", flush=True)
+start = time.perf_counter()
+concurrence.find_concurrences_over_frames(rays[:1])
+print(f"compiled new {time.perf_counter() - start:.1f}", flush=True)
+for repeat in range(repeats):
+    for path in ("new", "old"):
+        start = time.perf_counter()
+        found = concurrence.find_concurrences_over_frames(rays) if path == "new" else old_program(rays, depths, box)
+        count = int(np.sum(np.asarray(found.valid)))
+        print(f"time {path} {time.perf_counter() - start:.3f} {count}", flush=True)
+"""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=3000)
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--stall", type=float, default=150.0)
+    parser.add_argument("--tries", type=int, default=8, help="children to start before giving up on the old path")
+    args = parser.parse_args()
+    times = {"new": [], "old": []}
+    counts, hangs = {}, 0
+    for _ in range(args.tries):
+        hung, lines = run_until_stalled(CHILD, [str(args.frames), str(args.repeats)], args.stall)
+        for line in lines:
+            if line.startswith(("time", "compiled")):
+                print("  " + line, flush=True)
+            if line.startswith("time"):
+                _, path, seconds, count = line.split()
+                times[path].append(float(seconds))
+                counts[path] = int(count)
+        if not hung:
+            break
+        hangs += 1
+        print(f"  child hung ({hangs}); starting another", flush=True)
+    new, old = min(times["new"], default=float("nan")), min(times["old"], default=float("nan"))
+    t = args.frames
+    print(f"\n| path | best of {len(times['new'])}/{len(times['old'])} (s) | ms/frame | concurrences |")
+    print("|---|---|---|---|")
+    print(f"| new: batches, one thread per core | {new:.2f} | {1000 * new / t:.2f} | {counts.get('new')} |")
+    print(f"| old: one vmap over {t} frames | {old:.2f} | {1000 * old / t:.2f} | {counts.get('old')} |")
+    print(f"\nold / new = {old / new:.2f}× ; children that hung: {hangs}")
+
+
+if __name__ == "__main__":
+    main()
