@@ -6,9 +6,11 @@ the default options, after compilation: ``old`` is the former
 ``new`` is the shipped one, batches of frames small enough for XLA:CPU's LAPACK
 bound, on one host thread per core. The old program can deadlock on XLA:CPU
 (docs/runtime.md), so the child is watched: a child that stops printing for
-``--stall`` seconds is killed, counted as a hang and started again.
+``--stall`` seconds is killed, counted as a hang and started again, until
+``--old-runs`` children have timed the old program. Each child times the new path
+``--repeats`` times, then the old program once.
 
-    python benchmarks/bench_long_recording.py [--frames 3000] [--repeats 2]
+    python benchmarks/bench_long_recording.py [--frames 3000] [--repeats 2] [--old-runs 2]
 """
 
 from __future__ import annotations
@@ -38,12 +40,12 @@ print(f"compiled old {time.perf_counter() - start:.1f}", flush=True)
 start = time.perf_counter()
 concurrence.find_concurrences_over_frames(rays[:1])
 print(f"compiled new {time.perf_counter() - start:.1f}", flush=True)
-for repeat in range(repeats):
-    for path in ("new", "old"):
-        start = time.perf_counter()
-        found = concurrence.find_concurrences_over_frames(rays) if path == "new" else old_program(rays, depths, box)
-        count = int(np.sum(np.asarray(found.valid)))
-        print(f"time {path} {time.perf_counter() - start:.3f} {count}", flush=True)
+# The old program last: a child that hangs there has already timed the new path.
+for path in ["new"] * repeats + ["old"]:
+    start = time.perf_counter()
+    found = concurrence.find_concurrences_over_frames(rays) if path == "new" else old_program(rays, depths, box)
+    count = int(np.sum(np.asarray(found.valid)))
+    print(f"time {path} {time.perf_counter() - start:.3f} {count}", flush=True)
 """
 
 
@@ -52,6 +54,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=3000)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--stall", type=float, default=150.0)
+    parser.add_argument("--old-runs", type=int, default=2, help="timings of the old program to collect (one per child)")
     parser.add_argument("--tries", type=int, default=8, help="children to start before giving up on the old path")
     args = parser.parse_args()
     times = {"new": [], "old": []}
@@ -65,17 +68,19 @@ def main() -> None:
                 _, path, seconds, count = line.split()
                 times[path].append(float(seconds))
                 counts[path] = int(count)
-        if not hung:
+        hangs += hung
+        if hung:
+            print(f"  child hung ({hangs}); starting another", flush=True)
+        if len(times["old"]) >= args.old_runs:
             break
-        hangs += 1
-        print(f"  child hung ({hangs}); starting another", flush=True)
     new, old = min(times["new"], default=float("nan")), min(times["old"], default=float("nan"))
     t = args.frames
     print(f"\n| path | best of {len(times['new'])}/{len(times['old'])} (s) | ms/frame | concurrences |")
     print("|---|---|---|---|")
     print(f"| new: batches, one thread per core | {new:.2f} | {1000 * new / t:.2f} | {counts.get('new')} |")
     print(f"| old: one vmap over {t} frames | {old:.2f} | {1000 * old / t:.2f} | {counts.get('old')} |")
-    print(f"\nold / new = {old / new:.2f}× ; children that hung: {hangs}")
+    print(f"\nall times (s): new {times['new']}, old {times['old']}")
+    print(f"old / new = {old / new:.2f}× ; children that hung: {hangs}")
 
 
 if __name__ == "__main__":

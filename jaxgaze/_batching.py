@@ -113,10 +113,10 @@ def map_in_batches(
 ):
     """``fn`` over consecutive ``batch``-long slices of ``tree``'s leading axis, joined on the host.
 
-    Every call of ``fn`` sees the same leading size ``batch`` (the last slice is
-    padded by ``pad(part, batch)``, by default by repeating its last entry, and
-    the padding is cut from the result), so a jitted ``fn`` compiles once per
-    ``batch`` whatever the length. On XLA:CPU the slices run on as many host
+    Every call of ``fn`` sees the same leading size ``batch`` (the last or only
+    slice is padded by ``pad(part, batch)``, by default by repeating its last
+    entry, and the padding is cut from the result), so a jitted ``fn`` compiles
+    once per ``batch`` whatever the length. On XLA:CPU the slices run on as many host
     threads as the process has cores: a batch small enough for the LAPACK bound
     keeps one core busy, so two slices at a time keep two busy. Returns ``fn``'s
     output pytree with numpy leaves of length ``T``.
@@ -127,7 +127,7 @@ def map_in_batches(
     total = int(np.shape(leaves[0])[0])
     if total == 0:
         raise ValueError("map_in_batches needs at least one entry along the leading axis")
-    batch = max(1, min(int(batch), total))
+    batch = max(1, int(batch))
     host = jax.tree_util.tree_map(np.asarray, tree)
     pad = pad or _edge_pad
     starts = range(0, total, batch)
