@@ -1,5 +1,5 @@
 """Head orientation from partial facial features (ROVIS gaze following,
-``../shared/seeds/003_edc930f8c7304556.txt``; ``../shared/METHODS.md`` §4).
+"Human–Robot Interaction Through Robust Gaze Following").
 
 * :mod:`~jaxgaze.facial.face_model` — the generic 3D face (head frame, metres);
 * :mod:`~jaxgaze.facial.simulate` — faces at known poses with noisy, partly missing

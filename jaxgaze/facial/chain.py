@@ -1,7 +1,6 @@
 """The facial-feature cascade as a function of the hypothesis threshold ``T_h``, and
 its extremum-seeking tuning (ROVIS gaze following,
-``../shared/seeds/003_edc930f8c7304556.txt`` Sec. 3–4, Fig. 6, eq. 2;
-``../shared/METHODS.md`` §4).
+"Human–Robot Interaction Through Robust Gaze Following", Sec. 3–4, Fig. 6, eq. 2).
 
 Cascade, per face:
 

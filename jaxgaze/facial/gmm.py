@@ -1,6 +1,5 @@
 """GMM point localisation inside a facial-feature ROI (ROVIS gaze following,
-``../shared/seeds/003_edc930f8c7304556.txt`` Sec. 4, "GMM segmentation";
-``../shared/METHODS.md`` §4).
+"Human–Robot Interaction Through Robust Gaze Following", Sec. 4, "GMM segmentation").
 
 The pointwise location ``m_i`` of a feature is extracted from the pixel likelihoods
 ``p(l_i | g_j)`` of its ROI: a Gaussian mixture is fitted by EM to the ROI's pixel

@@ -1,5 +1,5 @@
 """Facial-feature hypotheses and points in real images (ROVIS gaze following,
-``../shared/seeds/003_edc930f8c7304556.txt`` Sec. 3–4; ``../shared/METHODS.md`` §4).
+"Human–Robot Interaction Through Robust Gaze Following", Sec. 3–4).
 
 The cascade of :mod:`jaxgaze.facial.chain`, on pixels instead of simulated hypotheses:
 

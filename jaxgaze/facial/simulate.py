@@ -1,5 +1,5 @@
 """Simulated faces with facial-feature ROI hypotheses and ground truth (ROVIS gaze
-following, ``../shared/seeds/003_edc930f8c7304556.txt`` Sec. 4; METHODS.md §4).
+following, "Human–Robot Interaction Through Robust Gaze Following", Sec. 4).
 
 Generative model, one face:
 
