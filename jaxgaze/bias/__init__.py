@@ -1,4 +1,4 @@
-"""Speaker-prior gaze bias adaptation (Siegfried, Odobez et al. 2017; ``../shared/METHODS.md`` §3).
+"""Speaker-prior gaze bias adaptation (Siegfried, Odobez et al. 2017).
 
 * :mod:`jaxgaze.bias.looking`: head-frame gaze angles, offsets to the target, the
   looking-at decision (eq. 1) and the speaker-based frame selection.

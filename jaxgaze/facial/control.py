@@ -1,5 +1,5 @@
 """Extremum-seeking control of the hypothesis threshold ``T_h`` (ROVIS gaze following,
-``../shared/seeds/003_edc930f8c7304556.txt`` Sec. 3–4, Fig. 5–6; ``../shared/METHODS.md`` §4).
+"Human–Robot Interaction Through Robust Gaze Following", Sec. 3–4, Fig. 5–6).
 
 The cascade's confidence ``y_f = J(T_h)`` (eq. 2) has an unknown maximum in ``T_h``:
 too low a threshold floods the cascade with false hypotheses, too high a threshold

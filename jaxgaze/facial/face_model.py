@@ -1,5 +1,5 @@
 """A generic 3D face: the landmark positions the facial-feature cascade localises
-(ROVIS gaze following, ``../shared/seeds/003_edc930f8c7304556.txt``; METHODS.md §4).
+(ROVIS gaze following, "Human–Robot Interaction Through Robust Gaze Following").
 
 Head frame (``docs/conventions.md``): origin at the eye midpoint, +x forward (out of
 the face), +y the person's left, +z up; metres. Values are adult averages rounded to

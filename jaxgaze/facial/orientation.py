@@ -1,5 +1,5 @@
 """Head orientation from localised facial points (ROVIS gaze following, last stage;
-``../shared/seeds/003_edc930f8c7304556.txt`` Sec. 4, ``../shared/METHODS.md`` §4).
+"Human–Robot Interaction Through Robust Gaze Following", Sec. 4).
 
 Two estimators take the five points of :data:`jaxgaze.facial.POINTS` (eye centres,
 nose tip, mouth corners) in pixels, ``NaN`` rows for the points that were not found:

@@ -1,5 +1,5 @@
-"""The image side of joint attention (Yücel et al., T-CYB 2013 and CogSci 2012;
-``../shared/METHODS.md`` §2): face detection, cylindrical head-model tracking,
+"""The image side of joint attention (Yücel et al., T-CYB 2013 and CogSci 2012):
+face detection, cylindrical head-model tracking,
 bottom-up saliency and the attended object.
 
 * :mod:`~jaxgaze.vision.images` — checks and conversions (RGB, uint8 or [0, 1] floats);

@@ -1,6 +1,6 @@
 """Bottom-up saliency, winner-take-all with inhibition of return, and the attended region.
 
-Yücel et al., T-CYB 2013, Sec. VI (``../shared/METHODS.md`` §2): the pooled target-point
+Yücel et al., T-CYB 2013, Sec. VI: the pooled target-point
 estimates of the gaze regression place Gaussian masks (σ = 10 px) on the 320 × 240
 image; bottom-up saliency inside the masks and a winner-take-all pick the attended
 location, and inhibition of return offers the next candidates. The object at the
