@@ -31,11 +31,10 @@ from jaxgaze import concurrence
 frames, repeats = int(sys.argv[1]), int(sys.argv[2])
 scene = simulate_scene(jax.random.key(4), "meeting", num_frames=frames)
 rays = scene.rays
-depths, box, static = concurrence._options(rays, concurrence.DEFAULT_SEED_DEPTHS, None, 2, 3.0, 2.0, 0.9, 0.3,
-                                           1e-4, 500, None, 100.0, 64)
-whole = dict(static, modes_per_batch=static["max_modes"])
+sys.path.insert(0, sys.argv[3])
+from old_path import compile_old_path
 start = time.perf_counter()
-old_program = concurrence._over_frames_jit.lower(rays, depths, box, **whole).compile()
+old_run = compile_old_path(rays)
 print(f"compiled old {time.perf_counter() - start:.1f}", flush=True)
 start = time.perf_counter()
 concurrence.find_concurrences_over_frames(rays[:1])
@@ -43,7 +42,7 @@ print(f"compiled new {time.perf_counter() - start:.1f}", flush=True)
 # The old program last: a child that hangs there has already timed the new path.
 for path in ["new"] * repeats + ["old"]:
     start = time.perf_counter()
-    found = concurrence.find_concurrences_over_frames(rays) if path == "new" else old_program(rays, depths, box)
+    found = concurrence.find_concurrences_over_frames(rays) if path == "new" else old_run()
     count = int(np.sum(np.asarray(found.valid)))
     print(f"time {path} {time.perf_counter() - start:.3f} {count}", flush=True)
 """
@@ -60,7 +59,7 @@ def main() -> None:
     times = {"new": [], "old": []}
     counts, hangs = {}, 0
     for _ in range(args.tries):
-        hung, lines = run_until_stalled(CHILD, [str(args.frames), str(args.repeats)], args.stall)
+        hung, lines = run_until_stalled(CHILD, [str(args.frames), str(args.repeats), os.path.dirname(os.path.abspath(__file__))], args.stall)
         for line in lines:
             if line.startswith(("time", "compiled")):
                 print("  " + line, flush=True)

@@ -35,15 +35,13 @@ import jax, numpy as np
 from jaxgaze.simulate import simulate_scene
 from jaxgaze import concurrence
 
-path, frames, calls, full = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1"
+path, frames, calls, full, benchmarks = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1", sys.argv[5]
 scene = simulate_scene(jax.random.key(4), "meeting", num_frames=frames)
 options = {} if full else dict(seed_depths=(1.0, 3.0), max_iter=60, refine_steps=16)
 if path == "old":
-    depths, box, static = concurrence._options(
-        scene.rays, options.get("seed_depths", concurrence.DEFAULT_SEED_DEPTHS), None, 2, 3.0, 2.0, 0.9, 0.3,
-        1e-4, options.get("max_iter", 500), None, 100.0, options.get("refine_steps", 64))
-    static["modes_per_batch"] = static["max_modes"]
-    run = lambda: concurrence._over_frames_jit(scene.rays, depths, box, **static)
+    sys.path.insert(0, benchmarks)
+    from old_path import compile_old_path
+    run = compile_old_path(scene.rays, **options)
 else:
     run = lambda: concurrence.find_concurrences_over_frames(scene.rays, **options)
 print("ready", flush=True)
@@ -58,7 +56,7 @@ for call in range(calls):
 def one_run(path: str, frames: int, calls: int, full: bool, stall: float) -> tuple[bool, int, float, list[str]]:
     """``(hung, calls finished, wall seconds, output lines)`` of one child process."""
     start = time.perf_counter()
-    hung, lines = run_until_stalled(CHILD, [path, str(frames), str(calls), "1" if full else "0"], stall)
+    hung, lines = run_until_stalled(CHILD, [path, str(frames), str(calls), "1" if full else "0", os.path.dirname(os.path.abspath(__file__))], stall)
     finished = sum(line.startswith("call ") for line in lines)
     return hung, finished, time.perf_counter() - start, lines
 

@@ -34,10 +34,10 @@ __all__ = [
     "lapack_qr_cost",
     "lapack_eigh_cost",
     "lapack_lu_cost",
-    "lapack_cholesky_cost",
     "lapack_safe_batch",
     "lapack_guard_applies",
     "map_in_batches",
+    "repeat_last",
 ]
 
 #: ``batch × flops per matrix`` at which jaxlib splits a batched LAPACK call over the pool.
@@ -60,11 +60,6 @@ def lapack_eigh_cost(n: int) -> int:
 def lapack_lu_cost(n: int) -> int:
     """jaxlib's flop estimate of one LU factorisation (``getrf``) of ``n × n``."""
     return n**3
-
-
-def lapack_cholesky_cost(n: int) -> int:
-    """jaxlib's flop estimate of one Cholesky factorisation (``potrf``) of ``n × n``."""
-    return n**3 // 3
 
 
 def lapack_safe_batch(cost_per_item: int, cap: int) -> int:
@@ -92,7 +87,7 @@ def _cpu_count() -> int:
         return os.cpu_count() or 1
 
 
-def _edge_pad(tree, size: int):
+def repeat_last(tree, size: int):
     """Pad every leaf's leading axis to ``size`` by repeating its last entry."""
     def pad(a):
         extra = size - a.shape[0]
@@ -129,7 +124,7 @@ def map_in_batches(
         raise ValueError("map_in_batches needs at least one entry along the leading axis")
     batch = max(1, int(batch))
     host = jax.tree_util.tree_map(np.asarray, tree)
-    pad = pad or _edge_pad
+    pad = pad or repeat_last
     starts = range(0, total, batch)
 
     def run(start):

@@ -50,6 +50,7 @@ from jaxgaze._batching import (
     lapack_qr_cost,
     lapack_safe_batch,
     map_in_batches,
+    repeat_last,
 )
 from jaxgaze.geometry import orthonormal_basis
 from jaxgaze.meanshift_kernel import fused_meanshift
@@ -559,10 +560,9 @@ def _batch_plan(n: int, k: int) -> tuple[int, int]:
 
 def _masked_padding(rays: GazeRays, size: int) -> GazeRays:
     """Pad a ``(B, N)`` slice to ``size`` frames with empty frames (every ray masked)."""
-    extra = size - rays.batch_shape[0]
-    padded = jax.tree_util.tree_map(lambda a: np.concatenate([a, np.repeat(a[-1:], extra, axis=0)]), rays)
+    padded = repeat_last(rays, size)
     mask = np.array(padded.mask)
-    mask[-extra:] = False
+    mask[rays.batch_shape[0]:] = False
     return eqx.tree_at(lambda r: r.mask, padded, mask)
 
 
