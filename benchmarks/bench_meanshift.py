@@ -171,7 +171,7 @@ def tune_fused(rays, seeds, iterations: int, max_stretch: int, shapes: str) -> N
 
 def tune_one(shape: str, size: tuple[int, int], iterations: int, max_stretch: int) -> None:
     from jaxgaze.concurrence import ray_projector
-    from jaxgaze.meanshift_kernel import fused_meanshift
+    from jaxgaze.concurrence.meanshift_pallas import fused_meanshift
 
     block_seeds, block_rays, warps = (int(v) for v in shape.split("x")[:3])
     approximate = not shape.endswith("exact")

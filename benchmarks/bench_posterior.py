@@ -1,14 +1,14 @@
-"""Many small calibration posteriors: ``jaxgaze.inference.sample_nuts`` against numpyro's ``MCMC``.
+"""Many small calibration posteriors: ``jaxgaze.nuts.sample_nuts`` against numpyro's ``MCMC``.
 
 Both run numpyro's NUTS (dense mass matrix, target acceptance 0.9) on
-:func:`jaxgaze.calibration_posterior.calibration_model` for ``--wearers`` simulated
-wearers (:func:`jaxgaze.simulate_calibration.simulate_wearers`), one after the
+:func:`jaxgaze.calibration.posterior.calibration_model` for ``--wearers`` simulated
+wearers (:func:`jaxgaze.simulate.calibration.simulate_wearers`), one after the
 other, in the same process:
 
 * reference: ``numpyro.infer.MCMC(NUTS(...), progress_bar=False, jit_model_args=True)``,
   one object reused for every wearer (numpyro 0.22 recompiles its sampling loop on
   each ``run`` with the progress bar off);
-* ours: :func:`jaxgaze.inference.sample_nuts`, one compiled single-chain program
+* ours: :func:`jaxgaze.nuts.sample_nuts`, one compiled single-chain program
   reused for every wearer.
 
 Printed: wall time of the whole batch for each (first wearer's compilation
@@ -29,9 +29,9 @@ import jax.numpy as jnp
 import numpy as np
 from numpyro.infer import MCMC, NUTS
 
-from jaxgaze.calibration_posterior import calibration_model
-from jaxgaze.inference import sample_nuts
-from jaxgaze.simulate_calibration import simulate_wearers
+from jaxgaze.calibration.posterior import calibration_model
+from jaxgaze.nuts import sample_nuts
+from jaxgaze.simulate.calibration import simulate_wearers
 
 
 def init_params(y):

@@ -23,7 +23,7 @@ import jax
 import numpy as np
 
 import jaxgaze as jg
-from jaxgaze.simulate_calibration import simulate_wearers
+from jaxgaze.simulate.calibration import simulate_wearers
 
 
 def errors(eye_centers, directions, true_eye, true_direction):

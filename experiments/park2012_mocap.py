@@ -26,7 +26,7 @@ import jax
 import numpy as np
 
 from jaxgaze import find_concurrences_over_frames
-from jaxgaze.metrics import count_accuracy, coverage, localisation_errors, region_coverage
+from jaxgaze.concurrence.metrics import count_accuracy, coverage, localisation_errors, region_coverage
 from jaxgaze.simulate import scene_config, simulate_scene
 
 PAPER_MEAN_CM, PAPER_STD_CM = 10.1, 5.73

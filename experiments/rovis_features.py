@@ -63,7 +63,7 @@ from jaxgaze.facial import (
     tune_threshold,
 )
 from jaxgaze.facial.orientation import head_orientation_gee_cipolla
-from jaxgaze.facial.simulate import FOCAL_PX, IMAGE_HEIGHT, IMAGE_WIDTH
+from jaxgaze.simulate.faces import FOCAL_PX, IMAGE_HEIGHT, IMAGE_WIDTH
 
 THRESHOLDS = np.round(np.arange(0.05, 0.501, 0.05), 2)
 SWEEP_GRID = np.round(np.arange(0.0, 0.901, 0.05), 2)

@@ -1,11 +1,11 @@
 """Table 1, Fig. 5 and Fig. 6 of Siegfried, Odobez et al. (2017) on simulated dyads.
 
 ``--sessions`` two-person sessions per scenario (``interview``, ``desk``) are simulated
-(:func:`jaxgaze.simulate_dyadic.simulate_dyadic_sessions`) and every person's gaze
+(:func:`jaxgaze.simulate.dyadic.simulate_dyadic_sessions`) and every person's gaze
 bias is estimated from the first minute by the paper's methods (Baseline, Spk-Mean
 N = 20, Spk-Med N = 40, the oracles GT-Mean and GT-Med) and by the Bayesian mixture
 (ours, NUTS on the Spk candidates thinned to ≥ 1/3 s apart, ≤ 64 frames), then scored
-on every frame after the first minute (:func:`jaxgaze.bias.evaluate.evaluate_bias_methods`):
+on every frame after the first minute (:func:`jaxgaze.papers.siegfried2017.evaluate_bias_methods`):
 the mean angular error (°) on the ground-truth looking frames and the accuracy of the
 looking decision ``e < τ`` (τ = 10°), both averaged per person and then over people.
 
@@ -22,8 +22,8 @@ import time
 import jax
 import numpy as np
 
-from jaxgaze.bias.evaluate import evaluate_bias_methods, format_figure_tables, format_table1
-from jaxgaze.simulate_dyadic import PRESETS, simulate_dyadic_sessions
+from jaxgaze.papers.siegfried2017 import evaluate_bias_methods, format_figure_tables, format_table1
+from jaxgaze.simulate.dyadic import PRESETS, simulate_dyadic_sessions
 
 
 def main(argv=None) -> None:

@@ -1,7 +1,7 @@
 """Table I (regression-only columns) of Yücel et al. (T-CYB 2013) and the CogSci table, on simulated sessions.
 
 ``--people`` experimenters each record ``--sessions`` table-top sessions of
-``--duration`` s at 10 fps (:func:`jaxgaze.simulate_tabletop.simulate_tabletop_sessions`:
+``--duration`` s at 10 fps (:func:`jaxgaze.simulate.tabletop.simulate_tabletop_sessions`:
 5–7 objects 20–30 cm apart, about 1.5 m from the robot camera, head pose
 under-rotating against gaze, tracker noise 0.02–0.04 rad). The regressors
 ``f1`` (gaze direction) and ``f2`` (target depth) are fitted on the head poses
@@ -9,7 +9,7 @@ under-rotating against gaze, tracker noise 0.02–0.04 rad). The regressors
 thinned evenly) by GPR (type-II ML) and by the NN baseline, for every
 self-referencing split (another session of the same person) and every
 cross-referencing split (train on the other people, test on one)
-(:func:`jaxgaze.gp.evaluate.evaluate_regression`).
+(:func:`jaxgaze.papers.yucel2013.evaluate_regression`).
 
 Printed: Table I's layout (Q1, Q2 per method and split, plus pooled scores, the
 head-pose baseline, the mean angular deviation of ``f1`` and GPR's 90 %
@@ -27,9 +27,9 @@ import time
 import jax
 import numpy as np
 
-from jaxgaze.gp.evaluate import evaluate_regression, format_cogsci_table, format_table_i
-from jaxgaze.gp.target import TOLERANCE, cmc_curve
-from jaxgaze.simulate_tabletop import simulate_tabletop_sessions
+from jaxgaze.papers.yucel2013 import evaluate_regression, format_cogsci_table, format_table_i
+from jaxgaze.headpose.target import TOLERANCE, cmc_curve
+from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
 
 
 def main(argv=None) -> None:

@@ -1,15 +1,15 @@
 """Table I of Yücel et al. (T-CYB 2013): regression alone vs regression + saliency, on simulated, rendered scenes.
 
 ``--people`` experimenters each record ``--sessions`` table-top sessions of
-``--duration`` s at 10 fps (:func:`jaxgaze.simulate_tabletop.simulate_tabletop_sessions`:
+``--duration`` s at 10 fps (:func:`jaxgaze.simulate.tabletop.simulate_tabletop_sessions`:
 5–7 objects 20–30 cm apart, about 1.5 m from the robot camera, head pose
 under-rotating against gaze, tracker noise 0.02–0.04 rad). Each session's camera
-picture is rendered under natural light (:func:`jaxgaze.vision.render.render_tabletop_scene`:
+picture is rendered under natural light (:func:`jaxgaze.simulate.render.render_tabletop_scene`:
 a cluttered wall, a wooden table, textured cubes at the session's boxes).
 
 The regressors ``f1`` (gaze direction) and ``f2`` (target depth) are fitted on the
 head poses (pitch, yaw, roll) of the training sessions (at most ``--train-frames``
-frames, thinned evenly, as :mod:`jaxgaze.gp.evaluate`) by GPR and by the NN baseline,
+frames, thinned evenly, as :mod:`jaxgaze.papers.yucel2013`) by GPR and by the NN baseline,
 for every self-referencing split (another session of the same person) and every
 cross-referencing split (train on the other people, test on one). On each test
 session the target points are pooled over ``--window`` frames and the attended
@@ -31,7 +31,7 @@ import time
 
 import jax
 
-from jaxgaze.simulate_tabletop import simulate_tabletop_sessions
+from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
 from jaxgaze.vision.attend import evaluate_attention, format_attention_table
 
 PAPER_TABLE_I = """paper, T-CYB Table I (Q1 / Q2), real videos, 4 people x 2 sessions:

@@ -1,10 +1,10 @@
 """Table II of Yücel et al. (T-CYB 2013): natural light, artificial light, dimmed light and blur, on simulated scenes.
 
 ``--people`` experimenters each record ``--sessions`` table-top sessions of
-``--duration`` s at 10 fps (:func:`jaxgaze.simulate_tabletop.simulate_tabletop_sessions`).
+``--duration`` s at 10 fps (:func:`jaxgaze.simulate.tabletop.simulate_tabletop_sessions`).
 The GPR regressors of ``f1`` and ``f2`` are fitted on the head poses of all but one person
 and tested on that person (cross-referencing, as Table II), and each test session's
-picture is rendered under the four conditions of :data:`jaxgaze.vision.render.CONDITIONS`
+picture is rendered under the four conditions of :data:`jaxgaze.simulate.render.CONDITIONS`
 with the same layout and clutter: ``natural``; ``artificial`` (a warm tungsten cast and
 a gamma); ``dimmed`` (exposure × 0.35 and sensor noise); ``blur`` (a 9–15 px motion
 blur). The head poses do not depend on the condition here (the simulator reports
@@ -24,9 +24,9 @@ import time
 
 import jax
 
-from jaxgaze.simulate_tabletop import simulate_tabletop_sessions
+from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
 from jaxgaze.vision.attend import evaluate_attention, format_attention_table
-from jaxgaze.vision.render import CONDITIONS
+from jaxgaze.simulate.render import CONDITIONS
 
 PAPER_TABLE_II = """paper, T-CYB Table II (Q1 / Q2), GPR, cross-referencing, recording set 2 (trained in natural light):
 | condition | Regr. | Regr.+Itti | Regr.+Judd | Regr.+Bruce |

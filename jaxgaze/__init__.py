@@ -1,40 +1,34 @@
 """jaxgaze: probabilistic models of gaze and joint attention in JAX.
 
+Each model family has a subpackage with one door (its ``__init__``):
+
+| family | paper | subpackage |
+|---|---|---|
+| gaze rays and cones | Park, Jain & Sheikh 2012, Sec. 3 | :mod:`jaxgaze.rays`, :mod:`jaxgaze.cone` |
+| gaze-ray calibration | Park, Jain & Sheikh 2012, Sec. 3.2 | :mod:`jaxgaze.calibration` |
+| gaze concurrences | Park, Jain & Sheikh 2012, Sec. 4 | :mod:`jaxgaze.concurrence` |
+| speaker-prior gaze bias | Siegfried, Yu & Odobez 2017 | :mod:`jaxgaze.bias` |
+| Gaussian-process engine | Rasmussen & Williams 2006 | :mod:`jaxgaze.gp` |
+| gaze from head pose | Yücel et al. 2013, Sec. V | :mod:`jaxgaze.headpose` |
+| attended object in images | Yücel et al. 2013, Sec. VI–VII | :mod:`jaxgaze.vision` |
+| head orientation from facial features | ROVIS, "Human–Robot Interaction Through Robust Gaze Following" | :mod:`jaxgaze.facial` |
+
+Around them: :mod:`jaxgaze.geometry` (frames, rotations, angles), :mod:`jaxgaze.poses`
+(camera trajectories), :mod:`jaxgaze.simulate` (every simulator), :mod:`jaxgaze.io`
+(every file format), :mod:`jaxgaze.papers` (each paper's table), :mod:`jaxgaze.plotting`
+and the command line :mod:`jaxgaze.cli`.
+
 Frames and units are documented in ``docs/conventions.md``: world/head/camera
 frames, metres, radians inside (degrees only in names ending ``_deg``).
+``import jaxgaze`` loads neither OpenCV nor the simulators: :mod:`jaxgaze.vision`,
+:mod:`jaxgaze.facial`, :mod:`jaxgaze.simulate`, :mod:`jaxgaze.io`,
+:mod:`jaxgaze.papers` and :mod:`jaxgaze.plotting` load on first use.
 """
 
-from jaxgaze import bias, facial, geometry, gp, metrics, poses, simulate, simulate_calibration, simulate_dyadic, simulate_tabletop, vision
-from jaxgaze.bias import (
-    BiasEstimate,
-    estimate_bias,
-    is_looking_at,
-    looking_probability,
-    read_openface,
-    read_rttm,
-    read_segments_csv,
-    select_frames,
-    speaking_flags,
-    update_bias,
-)
-from jaxgaze.calibration import CalibrationResult, ConeCalibration, calibrate_cone
-from jaxgaze.gp import GazeRegression, fit_gaze_regression, fit_gaze_regression_nn
-from jaxgaze.calibration_posterior import (
-    CalibrationPosterior,
-    ConcurrenceEnsemble,
-    calibrate_cone_posterior,
-    calibrate_cone_posterior_batch,
-    propagate_to_concurrences,
-)
-from jaxgaze.concurrence import (
-    Concurrences,
-    MeanShiftResult,
-    Tracks,
-    find_concurrences,
-    find_concurrences_over_frames,
-    meanshift,
-    track_concurrences,
-)
+import importlib
+
+from jaxgaze import bias, calibration, concurrence, cone, geometry, gp, headpose, poses, rays
+from jaxgaze.rays import GazeRays
 from jaxgaze.cone import (
     cone_log_density,
     max_intensity_projection,
@@ -44,47 +38,54 @@ from jaxgaze.cone import (
     sample_gaze_directions,
     sample_points_of_regard,
 )
-from jaxgaze.rays import GazeRays
-from jaxgaze.vision import attend_frames, detect_faces, track_head
+from jaxgaze.calibration import (
+    CalibrationPosterior,
+    CalibrationResult,
+    ConeCalibration,
+    calibrate_cone,
+    calibrate_cone_posterior,
+    calibrate_cone_posterior_batch,
+)
+from jaxgaze.concurrence import (
+    ConcurrenceEnsemble,
+    Concurrences,
+    MeanShiftResult,
+    Tracks,
+    find_concurrences,
+    find_concurrences_over_frames,
+    meanshift,
+    propagate_to_concurrences,
+    track_concurrences,
+)
+from jaxgaze.bias import (
+    BiasEstimate,
+    estimate_bias,
+    is_looking_at,
+    looking_probability,
+    select_frames,
+    speaking_flags,
+    update_bias,
+)
+from jaxgaze.headpose import GazeRegression, fit_gaze_regression, fit_gaze_regression_nn
 
 __version__ = "0.1.0"
 
+_ON_FIRST_USE = ("vision", "facial", "simulate", "io", "papers", "plotting", "cli")
+
+
+def __getattr__(name):
+    """Load the subpackages that need OpenCV or hold simulators only when they are used."""
+    if name in _ON_FIRST_USE:
+        return importlib.import_module(f"jaxgaze.{name}")
+    raise AttributeError(f"module 'jaxgaze' has no attribute {name!r}")
+
+
 __all__ = [
-    "facial",
-    "vision",
-    "attend_frames",
-    "detect_faces",
-    "track_head",
-    "bias",
-    "gp",
-    "simulate_tabletop",
-    "GazeRegression",
-    "fit_gaze_regression",
-    "fit_gaze_regression_nn",
-    "simulate_dyadic",
-    "BiasEstimate",
-    "estimate_bias",
-    "update_bias",
-    "is_looking_at",
-    "looking_probability",
-    "select_frames",
-    "read_openface",
-    "read_rttm",
-    "read_segments_csv",
-    "speaking_flags",
-    "calibrate_cone_posterior_batch",
+    # ground floor
     "geometry",
-    "metrics",
-    "simulate",
-    "simulate_calibration",
+    "rays",
+    "cone",
     "poses",
-    "calibrate_cone",
-    "ConeCalibration",
-    "CalibrationResult",
-    "calibrate_cone_posterior",
-    "CalibrationPosterior",
-    "propagate_to_concurrences",
-    "ConcurrenceEnsemble",
     "GazeRays",
     "cone_log_density",
     "sample_gaze_directions",
@@ -93,6 +94,16 @@ __all__ = [
     "saliency_field",
     "saliency_field_grid",
     "max_intensity_projection",
+    # calibration
+    "calibration",
+    "calibrate_cone",
+    "ConeCalibration",
+    "CalibrationResult",
+    "calibrate_cone_posterior",
+    "calibrate_cone_posterior_batch",
+    "CalibrationPosterior",
+    # concurrences
+    "concurrence",
     "meanshift",
     "MeanShiftResult",
     "find_concurrences",
@@ -100,4 +111,21 @@ __all__ = [
     "Concurrences",
     "track_concurrences",
     "Tracks",
+    "propagate_to_concurrences",
+    "ConcurrenceEnsemble",
+    # speaker-prior bias
+    "bias",
+    "speaking_flags",
+    "select_frames",
+    "is_looking_at",
+    "looking_probability",
+    "BiasEstimate",
+    "estimate_bias",
+    "update_bias",
+    # gaze from head pose
+    "gp",
+    "headpose",
+    "GazeRegression",
+    "fit_gaze_regression",
+    "fit_gaze_regression_nn",
 ]

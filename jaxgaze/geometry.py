@@ -18,6 +18,7 @@ broadcasting noted in each docstring.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 __all__ = [
@@ -34,6 +35,21 @@ __all__ = [
     "ray_depth",
     "perspective_distance",
 ]
+
+
+#: ``v_ours = R_OURS_FROM_OPENCV @ v_opencv``. OpenCV/COLMAP camera axes are
+#: x right, y down, z forward; ours are x forward, y left, z up. So
+#: our x = OpenCV z, our y = −(OpenCV x), our z = −(OpenCV y). det = +1.
+#: A COLMAP world-to-camera rotation converts as
+#: ``R_camera_from_world = R_OURS_FROM_OPENCV @ R_opencv_camera_from_world``.
+R_OURS_FROM_OPENCV = np.array(
+    [
+        [0.0, 0.0, 1.0],
+        [-1.0, 0.0, 0.0],
+        [0.0, -1.0, 0.0],
+    ]
+)
+R_OURS_FROM_OPENCV.setflags(write=False)
 
 
 def _tiny(x: Array) -> Array:

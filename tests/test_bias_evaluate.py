@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from jaxgaze.bias.estimators import estimate_bias
-from jaxgaze.bias.evaluate import (
+from jaxgaze.papers.siegfried2017 import (
     METHODS,
     BiasEvaluation,
     accuracy_by_threshold,
@@ -28,7 +28,7 @@ from jaxgaze.bias.evaluate import (
     random_frames,
     thinned_frames,
 )
-from jaxgaze.simulate_dyadic import simulate_dyadic, simulate_dyadic_sessions
+from jaxgaze.simulate.dyadic import simulate_dyadic, simulate_dyadic_sessions
 
 SESSIONS = 12
 DURATION_S = 90.0
@@ -218,7 +218,7 @@ def test_thinned_frames_by_hand():
 
 def test_lmeds_and_mean_rows_match_estimate_bias():
     """The vectorised Spk/GT estimators equal estimate_bias on the same frames."""
-    from jaxgaze.bias.evaluate import _lmeds_or_zero, _mean_or_zero
+    from jaxgaze.papers.siegfried2017 import _lmeds_or_zero, _mean_or_zero
 
     o = np.asarray(jax.random.normal(jax.random.key(5), (2, 40, 2))) * 0.05
     o[1, 25:] += 0.5  # outliers

@@ -12,18 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from jaxgaze.bias.io import (
-    R_OPENFACE_MODEL_FROM_HEAD,
-    OpenFaceFileError,
-    SpeechFileError,
-    SpeechSegments,
-    read_openface,
-    read_rttm,
-    read_segments_csv,
-    speaking_flags,
-)
+from jaxgaze.bias.speech import SpeechSegments, speaking_flags
+from jaxgaze.io.openface import R_OPENFACE_MODEL_FROM_HEAD, OpenFaceFileError, read_openface
+from jaxgaze.io.speech import SpeechFileError, read_rttm, read_segments_csv
 from jaxgaze.geometry import axis_angle_to_rotation_matrix, yaw_pitch_to_direction
-from jaxgaze.poses import R_OURS_FROM_OPENCV
+from jaxgaze.geometry import R_OURS_FROM_OPENCV
 
 DATA = Path(__file__).parent / "data"
 OPENFACE = DATA / "openface_sample.csv"

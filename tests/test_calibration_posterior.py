@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import jaxgaze as jg
-from jaxgaze.calibration_posterior import calibrate_cone_posterior
+from jaxgaze.calibration.posterior import calibrate_cone_posterior
 from jaxgaze.cone import sample_points_of_regard
 
 TRUE_EYE = np.array([-0.08, 0.01, -0.10])
@@ -85,7 +85,7 @@ def test_bad_points(points, message):
 
 def test_calibration_spread_propagates_to_concurrence_locations():
     """Direction draws of spread σ move the concurrence like the Laplace covariance with h = σ."""
-    from jaxgaze.calibration_posterior import propagate_to_concurrences
+    from jaxgaze.calibration.posterior import propagate_to_concurrences
     from jaxgaze.geometry import orthonormal_basis
 
     target = np.array([0.0, 0.0, 1.2])

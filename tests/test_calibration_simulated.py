@@ -1,6 +1,6 @@
 """Issue 3's must-shows on simulated wearers with known mounting offsets.
 
-The sessions come from :mod:`jaxgaze.simulate_calibration` (pairs looking at each
+The sessions come from :mod:`jaxgaze.simulate.calibration` (pairs looking at each
 other's camera while moving back and forth and side to side, with eye-in-head
 deviations ``h = 0.03`` rad, camera pose noise, and optional outlier frames), not
 from the cone model directly, so the mounting, the pose noise and the outliers all
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import jaxgaze as jg
-from jaxgaze.simulate_calibration import simulate_wearers
+from jaxgaze.simulate.calibration import simulate_wearers
 
 FRAMES = 300
 WEARERS = 50

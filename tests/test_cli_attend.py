@@ -11,11 +11,12 @@ import pytest
 from cli_helpers import assert_failed, run_main
 
 from jaxgaze.cli import ATTEND_COLUMNS, main
-from jaxgaze.gp.io import load_gaze_regression
-from jaxgaze.gp.regression import GazeRegression
-from jaxgaze.simulate_tabletop import simulate_tabletop_sessions
+from jaxgaze.io.models import load_gaze_regression
+from jaxgaze.headpose.regression import GazeRegression
+from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
 from jaxgaze.vision.head_model import frontal_rotation, pose_to_rotation, rotation_to_pose
-from jaxgaze.vision.video import read_frames, render_tabletop_video, write_video
+from jaxgaze.io.video import read_frames, write_video
+from jaxgaze.simulate.video import render_tabletop_video
 
 DEMO_FRAMES = 14  # + 10 lead-in frames = 24 frames = 6 windows of 4
 
@@ -179,7 +180,7 @@ def test_fit_gaze_progress_bar_on_tty(fitted, tmp_path, capsys, monkeypatch):
     (The fit is faked by the fixture's model: the bar itself is tested in test_gp_exact.)"""
     import sys
 
-    import jaxgaze.gp.regression as regression
+    import jaxgaze.headpose.regression as regression
 
     calls = []
 

@@ -25,10 +25,10 @@ import pytest
 from cli_helpers import assert_failed, run_main
 from scipy.spatial.transform import Rotation
 
-from jaxgaze.bias.io import R_OPENFACE_MODEL_FROM_HEAD
+from jaxgaze.io.openface import R_OPENFACE_MODEL_FROM_HEAD
 from jaxgaze.cli import BIAS_FRAME_COLUMNS, main
-from jaxgaze.poses import R_OURS_FROM_OPENCV
-from jaxgaze.simulate_dyadic import simulate_dyadic
+from jaxgaze.geometry import R_OURS_FROM_OPENCV
+from jaxgaze.simulate.dyadic import simulate_dyadic
 
 FPS = 10.0
 DURATION_S = 60.0

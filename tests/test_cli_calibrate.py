@@ -19,8 +19,9 @@ from cli_helpers import assert_failed, run_main
 
 from jaxgaze.cli import CAMERA_POSE_COLUMNS, CSV_COLUMNS, OUTPUT_COLUMNS, main
 from jaxgaze.geometry import rotation_matrix_to_quaternion
-from jaxgaze.poses import CameraPoses, write_colmap_images, write_pose_csv
-from jaxgaze.simulate_calibration import simulate_calibration_session
+from jaxgaze.io.poses import write_colmap_images, write_pose_csv
+from jaxgaze.poses import CameraPoses
+from jaxgaze.simulate.calibration import simulate_calibration_session
 
 DATA = os.path.join(os.path.dirname(__file__), "data")
 POSE_HEADER = "frame,qw,qx,qy,qz,cx,cy,cz\n"
@@ -213,7 +214,7 @@ def test_calibrate_posterior_written_only_with_the_json(session, tmp_path, capsy
     import arviz
     import pandas as pd
 
-    import jaxgaze.calibration_posterior as calibration_posterior
+    import jaxgaze.calibration.posterior as calibration_posterior
 
     def fake_posterior(points, **kwargs):
         idata = arviz.from_dict(posterior={"bandwidth": np.full((2, 5), 0.03)})

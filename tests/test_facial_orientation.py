@@ -19,7 +19,7 @@ from jaxgaze.facial.orientation import (
     rotation_to_pose,
     to_gaze_rays,
 )
-from jaxgaze.poses import R_OURS_FROM_OPENCV
+from jaxgaze.geometry import R_OURS_FROM_OPENCV
 
 F = 800.0
 C = (320.0, 240.0)
@@ -340,7 +340,7 @@ def test_shape_sd_makes_intervals_cover_the_simulated_faces():
     σ under-covers."""
     from jaxgaze.facial import simulate_faces
     from jaxgaze.facial.face_model import FACE_SHAPE_SD
-    from jaxgaze.facial.simulate import FOCAL_PX, IMAGE_HEIGHT, IMAGE_WIDTH
+    from jaxgaze.simulate.faces import FOCAL_PX, IMAGE_HEIGHT, IMAGE_WIDTH
 
     pp = (IMAGE_WIDTH / 2, IMAGE_HEIGHT / 2)
     faces = simulate_faces(jax.random.key(5), 400, view="frontal")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from jaxgaze.facial.metrics import cumulative_histogram, normalized_deviation, tau
-from jaxgaze.facial.simulate import Hypotheses, simulate_faces
+from jaxgaze.simulate.faces import Hypotheses, simulate_faces
 from jaxgaze.facial.spatial import (
     best_configuration,
     enumerate_combinations,
@@ -68,7 +68,7 @@ def test_simulator_bad_args():
 def test_simulator_generic_shape_is_the_generic_face():
     """shape_sd = point_sd = 0: every face is the generic face, so PnP recovers the pose exactly."""
     from jaxgaze.facial import orientation_pnp
-    from jaxgaze.facial.simulate import FOCAL_PX, IMAGE_HEIGHT, IMAGE_WIDTH
+    from jaxgaze.simulate.faces import FOCAL_PX, IMAGE_HEIGHT, IMAGE_WIDTH
 
     faces = simulate_faces(jax.random.key(4), 5, view="frontal", shape_sd=0.0, point_sd=0.0)
     for i in range(5):

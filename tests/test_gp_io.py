@@ -1,4 +1,4 @@
-"""Saving and loading gaze regressions (jaxgaze.gp.io): round trips and clear errors."""
+"""Saving and loading gaze regressions (jaxgaze.io.models): round trips and clear errors."""
 
 import json
 import os
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from jaxgaze.gp.exact import FitResult, _finish
-from jaxgaze.gp.io import (
+from jaxgaze.io.models import (
     FORMAT,
     VERSION,
     ModelFileError,
@@ -21,8 +21,8 @@ from jaxgaze.gp.io import (
     save_gaze_regression,
 )
 from jaxgaze.gp.kernels import RBF, ArcSine, Constant, Linear, Product, RationalQuadratic, Sum, White
-from jaxgaze.gp.nn import MLPFit, Standardisation, init_mlp_params
-from jaxgaze.gp.regression import GazeRegression, NNGazeRegression, Scaling
+from jaxgaze.headpose.nn import MLPFit, Standardisation, init_mlp_params
+from jaxgaze.headpose.regression import GazeRegression, NNGazeRegression, Scaling
 
 
 def _gp(kernel, X, y):
@@ -139,7 +139,7 @@ def test_kernel_json_round_trip_and_registry(x64):
         register_kernel(Scaled)
         assert type(kernel_from_json(kernel_to_json(Scaled(1.0, 2.0)))) is Scaled
     finally:
-        from jaxgaze.gp.io import KERNEL_TYPES
+        from jaxgaze.io.models import KERNEL_TYPES
 
         KERNEL_TYPES.pop("Scaled", None)
     with pytest.raises(ValueError, match="unknown kernel type"):

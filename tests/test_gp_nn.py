@@ -1,4 +1,4 @@
-"""Tests of the NN baseline regressor (jaxgaze.gp.nn; Yücel et al. CogSci / T-CYB Sec. VII)."""
+"""Tests of the NN baseline regressor (jaxgaze.headpose.nn; Yücel et al. CogSci / T-CYB Sec. VII)."""
 
 import warnings
 
@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import jaxgaze.gp.nn as nn
+import jaxgaze.headpose.nn as nn
 
 
 # --------------------------------------------------------------------------- references

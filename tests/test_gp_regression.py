@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from jaxgaze.gp import kernels
-from jaxgaze.gp.evaluate import evaluate_regression, format_cogsci_table, format_table_i
+from jaxgaze.papers.yucel2013 import evaluate_regression, format_cogsci_table, format_table_i
 from jaxgaze.gp.exact import fit, predict
 from jaxgaze.gp.posterior import sample_hyperparameter_posterior
-from jaxgaze.gp.regression import fit_gaze_regression, fit_gaze_regression_nn
-from jaxgaze.simulate_tabletop import head_pose_features, simulate_tabletop_sessions
+from jaxgaze.headpose.regression import fit_gaze_regression, fit_gaze_regression_nn
+from jaxgaze.simulate.tabletop import head_pose_features, simulate_tabletop_sessions
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Target point, pooling, Q1/Q2, CogSci metrics, CMC and splits (jaxgaze.gp.target)."""
+"""Target point, pooling, Q1/Q2, CogSci metrics, CMC and splits (jaxgaze.headpose.target)."""
 
 import math
 
@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxgaze.gp import target as tg
-from jaxgaze.simulate_tabletop import simulate_tabletop_sessions
+from jaxgaze.headpose import target as tg
+from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
 
 # ---------------------------------------------------------------------------
 # target_point

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import jaxgaze as jg
-from jaxgaze.concurrence import _field_value, _xla_meanshift, ray_projector
-from jaxgaze.meanshift_kernel import fused_meanshift
+from jaxgaze.concurrence.modes import _field_value, _xla_meanshift, ray_projector
+from jaxgaze.concurrence.meanshift_pallas import fused_meanshift
 
 ON_GPU = jax.default_backend() == "gpu"
 

@@ -1,4 +1,4 @@
-"""Evaluation metrics (jaxgaze.metrics): Hungarian matching, errors, counts, coverage."""
+"""Evaluation metrics (jaxgaze.concurrence.metrics): Hungarian matching, errors, counts, coverage."""
 
 import itertools
 from typing import NamedTuple
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from jaxgaze.metrics import (
+from jaxgaze.concurrence.metrics import (
     count_accuracy,
     coverage,
     evaluate,

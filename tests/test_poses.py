@@ -11,18 +11,9 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from jaxgaze.geometry import apply_similarity, similarity_alignment
-from jaxgaze.poses import (
-    R_OURS_FROM_OPENCV,
-    CameraPoses,
-    PoseFileError,
-    match_frames,
-    points_of_regard,
-    read_colmap_images,
-    read_pose_csv,
-    transform_poses,
-    write_colmap_images,
-    write_pose_csv,
-)
+from jaxgaze.geometry import R_OURS_FROM_OPENCV
+from jaxgaze.io.poses import PoseFileError, read_colmap_images, read_pose_csv, write_colmap_images, write_pose_csv
+from jaxgaze.poses import CameraPoses, match_frames, points_of_regard, transform_poses
 
 DATA = Path(__file__).parent / "data"
 COLMAP = DATA / "colmap_images.txt"

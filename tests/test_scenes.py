@@ -19,7 +19,7 @@ import jax
 import pytest
 
 from jaxgaze import find_concurrences_over_frames
-from jaxgaze.metrics import count_accuracy, coverage, localisation_errors
+from jaxgaze.concurrence.metrics import count_accuracy, coverage, localisation_errors
 from jaxgaze.simulate import simulate_scene
 
 MOCAP_FRAMES = 480

@@ -1,4 +1,4 @@
-"""Simulated calibration sessions (jaxgaze.simulate_calibration, Park et al. 2012 Sec. 3.2, 4).
+"""Simulated calibration sessions (jaxgaze.simulate.calibration, Park et al. 2012 Sec. 3.2, 4).
 
 Every single session here uses ``num_frames = T`` and ``fps = 10`` so that all of
 them share one compiled program (noise levels and mountings are traced).
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from jaxgaze.geometry import orthonormal_basis, perspective_distance
-from jaxgaze.simulate_calibration import (
+from jaxgaze.simulate.calibration import (
     CalibrationSession,
     Mounting,
     random_mounting,

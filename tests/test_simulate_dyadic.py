@@ -1,4 +1,4 @@
-"""Simulated dyadic interactions (jaxgaze.simulate_dyadic; Siegfried, Odobez et al. 2017).
+"""Simulated dyadic interactions (jaxgaze.simulate.dyadic; Siegfried, Odobez et al. 2017).
 
 Three compiled programs serve every test: one 40 s interview, a batch of 32
 such interviews, and one 10-minute desk session (the same key and shape reuse
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from jaxgaze.geometry import angle_between, direction_to_yaw_pitch, yaw_pitch_to_direction
-from jaxgaze.simulate_dyadic import (
+from jaxgaze.simulate.dyadic import (
     FOCUS_ELSEWHERE,
     FOCUS_PARTNER,
     NUM_OBJECTS,
@@ -389,7 +389,7 @@ def test_bad_key(key):
 
 def test_raw_uint32_key_accepted():
     # Validation only (no run): the legacy PRNGKey format passes the key check.
-    from jaxgaze.simulate_dyadic import _check_key
+    from jaxgaze.simulate.dyadic import _check_key
 
     _check_key(jax.random.PRNGKey(0))
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from jaxgaze.geometry import yaw_pitch_to_direction
-from jaxgaze.gp import target as tg
-from jaxgaze.simulate_tabletop import (
+from jaxgaze.headpose import target as tg
+from jaxgaze.simulate.tabletop import (
     IMAGE_HEIGHT,
     IMAGE_WIDTH,
     TabletopSession,

@@ -8,20 +8,20 @@ import jax
 import numpy as np
 import pytest
 
-from jaxgaze.gp import target as tg
-from jaxgaze.gp.regression import fit_gaze_regression
-from jaxgaze.simulate_tabletop import head_pose_features, simulate_tabletop_sessions
+from jaxgaze.headpose import target as tg
+from jaxgaze.headpose.regression import fit_gaze_regression
+from jaxgaze.simulate.tabletop import head_pose_features, simulate_tabletop_sessions
 from jaxgaze.vision import tracker
 from jaxgaze.vision.attend import (
     Attention,
     AttentionWindows,
     attend_frames,
-    attend_session,
     attend_window,
     target_point_covariance,
 )
+from jaxgaze.papers.yucel2013_attention import attend_session
 from jaxgaze.vision.head_model import CylinderHead, pose_to_rotation, render_head
-from jaxgaze.vision.render import composite, render_tabletop_scene
+from jaxgaze.simulate.render import composite, render_tabletop_scene
 from jaxgaze.vision.saliency_maps import SALIENCY_METHODS, saliency
 
 H, W = 240, 320

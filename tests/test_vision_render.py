@@ -1,4 +1,4 @@
-"""Rendered table-top scenes (jaxgaze.vision.render): ground truth, conditions, saliency sanity."""
+"""Rendered table-top scenes (jaxgaze.simulate.render): ground truth, conditions, saliency sanity."""
 
 import itertools
 
@@ -7,9 +7,9 @@ import jax
 import numpy as np
 import pytest
 
-from jaxgaze.simulate_tabletop import IMAGE_HEIGHT, IMAGE_WIDTH, simulate_tabletop_sessions
+from jaxgaze.simulate.tabletop import IMAGE_HEIGHT, IMAGE_WIDTH, simulate_tabletop_sessions
 from jaxgaze.vision.images import check_image
-from jaxgaze.vision.render import CONDITIONS, RenderedScene, composite, render_tabletop_scene
+from jaxgaze.simulate.render import CONDITIONS, RenderedScene, composite, render_tabletop_scene
 
 
 @pytest.fixture(scope="module")

@@ -1,19 +1,19 @@
-"""Video and frame-folder IO, and rendering a simulated table-top session as a video (jaxgaze.vision.video)."""
+"""Video and frame-folder IO, and rendering a simulated table-top session as a video (jaxgaze.io.video)."""
 
 import cv2
 import jax
 import numpy as np
 import pytest
 
-from jaxgaze.simulate_tabletop import simulate_tabletop_sessions
+from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
 from jaxgaze.vision.head_model import CylinderHead, frontal_rotation, pose_to_rotation
-from jaxgaze.vision.video import (
+from jaxgaze.simulate.video import render_tabletop_video
+from jaxgaze.io.video import (
     VIDEO_CODECS,
     VideoFileError,
     frame_count,
     iter_frames,
     read_frames,
-    render_tabletop_video,
     video_fps,
     write_video,
 )

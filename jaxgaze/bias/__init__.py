@@ -4,8 +4,7 @@
   looking-at decision (eq. 1) and the speaker-based frame selection.
 * :mod:`jaxgaze.bias.estimators`: the bias from the offsets — mean, LMedS (eq. 2) and
   a Bayesian mixture (numpyro NUTS).
-* :mod:`jaxgaze.bias.io`: OpenFace 2 CSV files and speaking segments (RTTM, CSV).
-* :mod:`jaxgaze.bias.evaluate`: the paper's Table 1, Fig. 5 and Fig. 6 on simulated dyads.
+* :mod:`jaxgaze.bias.speech`: speech segments and per-frame speaking flags.
 """
 
 from jaxgaze.bias.estimators import (
@@ -17,18 +16,7 @@ from jaxgaze.bias.estimators import (
     sample_bias_posterior,
     update_bias,
 )
-from jaxgaze.bias.evaluate import BiasEvaluation, evaluate_bias_methods, format_figure_tables, format_table1
-from jaxgaze.bias.io import (
-    OpenFaceFileError,
-    OpenFaceTrack,
-    SpeechFileError,
-    SpeechSegments,
-    read_openface,
-    read_rttm,
-    read_segments_csv,
-    speaking_at,
-    speaking_flags,
-)
+from jaxgaze.bias.speech import SpeechSegments, speaking_at, speaking_flags
 from jaxgaze.bias.looking import (
     FrameSelection,
     angular_error,
@@ -46,10 +34,6 @@ from jaxgaze.bias.looking import (
 )
 
 __all__ = [
-    "BiasEvaluation",
-    "evaluate_bias_methods",
-    "format_table1",
-    "format_figure_tables",
     "METHODS",
     "BiasEstimate",
     "bias_model",
@@ -57,13 +41,7 @@ __all__ = [
     "lmeds_bias",
     "sample_bias_posterior",
     "update_bias",
-    "OpenFaceFileError",
-    "OpenFaceTrack",
-    "SpeechFileError",
     "SpeechSegments",
-    "read_openface",
-    "read_rttm",
-    "read_segments_csv",
     "speaking_flags",
     "speaking_at",
     "FrameSelection",

@@ -31,7 +31,7 @@ import numpyro.distributions as dist
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from jaxgaze.geometry import deg_to_rad, rad_to_deg
-from jaxgaze.inference import quiet_single_chain, sample_nuts
+from jaxgaze.nuts import quiet_single_chain, sample_nuts
 
 if TYPE_CHECKING:  # arviz is slow to import: it is imported when a posterior is summarised
     import arviz as az
@@ -260,7 +260,7 @@ def contrast_log_density(
 
 @functools.lru_cache(maxsize=8)
 def _model(options: tuple):
-    """One model object per option set: it keys the compilation in :func:`jaxgaze.inference.sample_nuts`."""
+    """One model object per option set: it keys the compilation in :func:`jaxgaze.nuts.sample_nuts`."""
     return functools.partial(bias_model, **dict(options))
 
 
@@ -285,7 +285,7 @@ def sample_bias_posterior(
 ) -> tuple[dict, dict]:
     """NUTS draws from :func:`bias_model` for one person ``(N, 2)`` or many ``(P, N, 2)`` at once.
 
-    Runs numpyro's NUTS kernel through :func:`jaxgaze.inference.sample_nuts`: one
+    Runs numpyro's NUTS kernel through :func:`jaxgaze.nuts.sample_nuts`: one
     compiled single-chain program, reused for every person and chain, with ``N``
     padded to a power of two (masked) so that fits of similar size share it. Each
     chain starts at the person's LMedS estimate, in the "looking" mode rather than

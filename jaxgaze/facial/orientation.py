@@ -22,7 +22,7 @@ Frames (``docs/conventions.md``)
 * **frontal**: the head frame of a face that looks straight down the optical axis
   back at the camera, ``R_OPTICAL_FROM_FRONTAL = [[0,1,0],[0,0,−1],[−1,0,0]]``
   (forward = −z, left = +x, up = −y). It is the same for every head position
-  (unlike the eye-contact frame of :mod:`jaxgaze.simulate_tabletop`).
+  (unlike the eye-contact frame of :mod:`jaxgaze.simulate.tabletop`).
 * **pose** ``(yaw, pitch, roll)``, as the head model of ``docs/conventions.md``:
   ``R_optical_from_head = R_OPTICAL_FROM_FRONTAL · R_z(yaw) R_y(−pitch) R_x(roll)``.
   yaw > 0 turns the face to the person's left (the image's right), pitch > 0 up,
@@ -43,7 +43,7 @@ import numpy as np
 
 from jaxgaze.facial.face_model import POINTS, R_OPTICAL_FROM_FRONTAL, FaceModel, generic_face
 from jaxgaze.geometry import direction_to_yaw_pitch, head_pose_to_rotation
-from jaxgaze.poses import R_OURS_FROM_OPENCV
+from jaxgaze.geometry import R_OURS_FROM_OPENCV
 from jaxgaze.rays import GazeRays
 
 __all__ = [

@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgaze.facial.simulate import Hypotheses
+from jaxgaze.facial.face_model import Hypotheses
 
 __all__ = [
     "SUBSETS",

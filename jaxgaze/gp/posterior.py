@@ -2,7 +2,7 @@
 
 Type-II maximum likelihood (:func:`jaxgaze.gp.fit`) keeps one set of
 hyperparameters ``θ``. Here ``θ`` gets a prior and is sampled with NUTS
-(numpyro's kernel, :func:`jaxgaze.inference.sample_nuts`):
+(numpyro's kernel, :func:`jaxgaze.nuts.sample_nuts`):
 
     log θ_j ~ N(log θ₀_j, s²)         (every trainable positive parameter; θ₀ the kernel passed)
     y | θ  ~ N(0, K_θ(X, X) + jitter I)  (Yücel et al. T-CYB eq. 11, the marginal likelihood)
@@ -29,7 +29,7 @@ from jaxtyping import Array, Float
 from jaxgaze.gp.exact import FittedGP, _check_data, _factor, _lml, _predict_from_factor
 from jaxgaze.gp.kernels import Kernel
 from jaxgaze.gp.transforms import positive
-from jaxgaze.inference import quiet_single_chain, sample_nuts
+from jaxgaze.nuts import quiet_single_chain, sample_nuts
 
 __all__ = ["HyperparameterPosterior", "hyperparameter_model", "sample_hyperparameter_posterior"]
 

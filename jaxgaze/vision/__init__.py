@@ -10,7 +10,7 @@ bottom-up saliency and the attended object.
   Gaussian masks, winner-take-all with inhibition of return, salient regions;
 * :mod:`~jaxgaze.vision.attend` — the posterior over attended locations and objects,
   per window of a session or a video;
-* :mod:`~jaxgaze.vision.render`, :mod:`~jaxgaze.vision.video` — rendered table-top
+* :mod:`~jaxgaze.simulate.render`, :mod:`~jaxgaze.io.video` — rendered table-top
   scenes and videos with ground truth, and video input/output.
 
 Image conventions are in :mod:`jaxgaze.vision.images` and ``docs/conventions.md``.
@@ -19,17 +19,13 @@ Image conventions are in :mod:`jaxgaze.vision.images` and ``docs/conventions.md`
 from jaxgaze.vision.attend import (
     Attention,
     AttentionWindows,
-    SessionAttention,
     attend_frames,
-    attend_session,
     attend_window,
-    evaluate_attention,
     target_point_covariance,
 )
 from jaxgaze.vision.faces import EyeBox, FaceBox, detect_eyes, detect_faces
 from jaxgaze.vision.head_model import CylinderHead, render_head
 from jaxgaze.vision.images import check_image, to_float, to_gray_float, to_gray_uint8, to_rgb_float
-from jaxgaze.vision.render import CONDITIONS, RenderedScene, composite, render_tabletop_scene
 from jaxgaze.vision.saliency_maps import (
     SALIENCY_METHODS,
     Fixations,
@@ -39,16 +35,12 @@ from jaxgaze.vision.saliency_maps import (
     winner_take_all,
 )
 from jaxgaze.vision.tracker import HeadTrack, track_head
-from jaxgaze.vision.video import VideoFileError, read_frames, render_tabletop_video, video_fps, write_video
 
 __all__ = [
     "Attention",
     "AttentionWindows",
-    "SessionAttention",
     "attend_frames",
-    "attend_session",
     "attend_window",
-    "evaluate_attention",
     "target_point_covariance",
     "EyeBox",
     "FaceBox",
@@ -61,10 +53,6 @@ __all__ = [
     "to_gray_float",
     "to_gray_uint8",
     "to_rgb_float",
-    "CONDITIONS",
-    "RenderedScene",
-    "composite",
-    "render_tabletop_scene",
     "SALIENCY_METHODS",
     "Fixations",
     "gaussian_mask",
@@ -73,9 +61,4 @@ __all__ = [
     "winner_take_all",
     "HeadTrack",
     "track_head",
-    "VideoFileError",
-    "read_frames",
-    "render_tabletop_video",
-    "video_fps",
-    "write_video",
 ]

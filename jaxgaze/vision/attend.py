@@ -2,7 +2,7 @@
 
 The gaze regressors of :mod:`jaxgaze.gp` give, per frame, the image angle ``f1`` of
 the gaze line from the head centre and the image row ``f2`` of the target, with
-predictive variances; :func:`~jaxgaze.gp.target.target_point` turns them into a
+predictive variances; :func:`~jaxgaze.headpose.target.target_point` turns them into a
 target point. T-CYB pools 4 consecutive estimates (10 fps), puts a Gaussian mask
 (σ = 10 px) around each, computes bottom-up saliency and lets a winner-take-all with
 inhibition of return pick the attended location; the object there is segmented by
@@ -10,7 +10,7 @@ region growing. Here the choice is a **posterior over candidate locations**:
 
 * **Target-point covariance** (:func:`target_point_covariance`, delta method): with
   ``p(f1, f2)`` the target point, ``Σ_t = var(f1) J₁J₁ᵀ + var(f2) J₂J₂ᵀ``, ``J_i = ∂p/∂f_i``
-  (the derivatives of :func:`~jaxgaze.gp.target.target_point`'s closed form, the same
+  (the derivatives of :func:`~jaxgaze.headpose.target.target_point`'s closed form, the same
   as JAX's forward mode; ``f1`` and ``f2`` are independent GPs). Where the ray misses the row (the point is the head
   centre) the Jacobian is 0; where it is capped at ``max_length`` only ``J₁`` is left.
   The NN baseline has no variances: ``Σ_t = 0``, and the posterior below is the
@@ -30,10 +30,9 @@ region growing. Here the choice is a **posterior over candidate locations**:
 * **Choice**: the top candidate; its region is
   :func:`~jaxgaze.vision.saliency_maps.salient_region` on the masked map ``S · mask``; its object is the box it is in.
 
-Functions: :func:`attend_window` (one window), :func:`attend_session` (a simulated
-session on its rendered scene, with Q1/Q2 against the truth), :func:`evaluate_attention`
-(T-CYB Tables I–II on simulated sessions) and :func:`attend_frames` (a video:
-head tracking → regression → pooling → attention).
+Functions: :func:`attend_window` (one window) and :func:`attend_frames` (a video:
+head tracking → regression → pooling → attention). The paper's Tables I–II on
+simulated sessions are in :mod:`jaxgaze.papers.yucel2013_attention`.
 
 Coordinates are image coordinates (``docs/conventions.md``): x right, y down, origin at
 the top-left pixel's outer corner, so pixel ``(row i, col j)`` is centred at
@@ -43,34 +42,28 @@ the top-left pixel's outer corner, so pixel ``(row i, col j)`` is centred at
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from typing import NamedTuple
 
-import jax
 import numpy as np
 
-from jaxgaze.gp import target as tg
-from jaxgaze.simulate_tabletop import TabletopSession, head_pose_features
+from jaxgaze.headpose import target as tg
 from jaxgaze.vision.head_model import CylinderHead, pose_to_rotation
 from jaxgaze.vision.images import check_image
 from jaxgaze.vision.saliency_maps import SALIENCY_METHODS, gaussian_mask, salient_region, saliency, winner_take_all
 
 __all__ = [
     "Attention",
-    "AttentionScores",
     "AttentionWindows",
-    "SessionAttention",
     "attend_frames",
-    "attend_session",
     "attend_window",
-    "evaluate_attention",
-    "format_attention_table",
+    "target_points_and_covariances",
+    "NO_LOCATION",
     "target_point_covariance",
 ]
 
 SIGMA_PX = 10.0
 """T-CYB's Gaussian mask σ (px) around each pooled estimate."""
-_NO_LOCATION = "no location stands out"
+NO_LOCATION = "no location stands out"
 
 
 # ---------------------------------------------------------------------------
@@ -80,7 +73,7 @@ _NO_LOCATION = "no location stands out"
 def target_point_covariance(
     head_centre, direction, depth_y, direction_variance, depth_variance, *, max_length: float = tg.MAX_LENGTH_PX
 ) -> np.ndarray:
-    """Delta-method covariance ``(T, 2, 2)`` (px²) of :func:`~jaxgaze.gp.target.target_point`.
+    """Delta-method covariance ``(T, 2, 2)`` (px²) of :func:`~jaxgaze.headpose.target.target_point`.
 
     ``Σ_t = var(f1_t) J₁J₁ᵀ + var(f2_t) J₂J₂ᵀ`` with ``J₁ = ∂p/∂f1``, ``J₂ = ∂p/∂f2`` at
     the predicted means: for a ray that reaches the row, ``p = (h_x + (f2 − h_y) cot f1, f2)``,
@@ -253,8 +246,8 @@ def attend_window(
     try:
         fix = winner_take_all(smap, int(num_candidates), ior_radius_px=ior_radius_px, mask=mask)
     except ValueError as err:
-        if _NO_LOCATION in str(err):
-            raise ValueError(f"{_NO_LOCATION}: the saliency map is flat inside the mask (σ = {sigma:g} px) "
+        if NO_LOCATION in str(err):
+            raise ValueError(f"{NO_LOCATION}: the saliency map is flat inside the mask (σ = {sigma:g} px) "
                              f"around the estimates {xy.round(1).tolist()}") from None
         raise
     cands = fix.xy
@@ -262,7 +255,7 @@ def attend_window(
     with np.errstate(divide="ignore"):
         logw = np.log(s) + _log_mixture(cands, xy, cov + sigma**2 * np.eye(2))
     if not np.any(np.isfinite(logw)):
-        raise ValueError(f"{_NO_LOCATION}: no candidate has positive saliency")
+        raise ValueError(f"{NO_LOCATION}: no candidate has positive saliency")
     w = np.exp(logw - logw[np.isfinite(logw)].max())
     prob = w / w.sum()
     best = int(np.argmax(prob))
@@ -278,16 +271,12 @@ def attend_window(
     return Attention(cands[best].copy(), float(prob[best]), cands, prob, s, region, objects, obj_prob, none, chosen)
 
 
-# ---------------------------------------------------------------------------
-# Simulated sessions
+def target_points_and_covariances(regression, features, head_xy):
+    """Predicted target points and their delta-method covariances (Yücel et al. 2013, Sec. VI).
 
-
-def _features(regression, session: TabletopSession):
-    width = getattr(getattr(regression, "features", None), "mean", np.zeros(3)).shape[0]
-    return head_pose_features(session, include_position=width == 6)
-
-
-def _points_and_covariances(regression, features, head_xy):
+    Returns ``(f1, f2, points (T, 2), covariances (T, 2, 2))``; the covariances are 0
+    for a regression without predictive variances (the NN baseline).
+    """
     pred = regression.predict(features)
     d, y = np.asarray(pred.direction, np.float64), np.asarray(pred.depth, np.float64)
     points = np.asarray(tg.target_point(head_xy, d, y), np.float64)
@@ -297,214 +286,6 @@ def _points_and_covariances(regression, features, head_xy):
         cov = target_point_covariance(head_xy, d, y, pred.direction_variance, pred.depth_variance)
     return d, y, points, cov
 
-
-class SessionAttention(NamedTuple):
-    """Attention per pooling window of a simulated session, and its scores.
-
-    Attributes:
-        start_frame: ``(B,)`` first frame of each window (``B = T // window``).
-        labels: ``(B,)`` the attended object if constant over the window, else −1.
-        valid: ``(B,)`` windows with one label: the ones scored.
-        attended: ``(B,)`` saliency found a location (else the pooled estimate is used).
-        target_xy: ``(B, 2)`` the pooled regression estimate (mean target point).
-        attended_xy: ``(B, 2)`` the chosen location.
-        probability: ``(B,)`` its posterior probability (0 where not attended).
-        chosen_object: ``(B,)`` the box of the chosen location, or −1.
-        object_probabilities: ``(B, K)``; none_probability: ``(B,)``.
-        region_box: ``(B, 4)`` the salient region (NaN where not attended).
-        q1, q2: T-CYB eq. 14–15 (mean over objects) of ``attended_xy`` on the valid windows.
-        q1_regression, q2_regression: the same for ``target_xy`` (regression alone, pooled).
-        q1_frames, q2_frames: regression alone per frame (all frames, as ``gp.evaluate``).
-    """
-
-    start_frame: np.ndarray
-    labels: np.ndarray
-    valid: np.ndarray
-    attended: np.ndarray
-    target_xy: np.ndarray
-    attended_xy: np.ndarray
-    probability: np.ndarray
-    chosen_object: np.ndarray
-    object_probabilities: np.ndarray
-    none_probability: np.ndarray
-    region_box: np.ndarray
-    q1: float
-    q2: float
-    q1_regression: float
-    q2_regression: float
-    q1_frames: float
-    q2_frames: float
-
-
-def attend_session(
-    session: TabletopSession,
-    regression,
-    scene_image,
-    *,
-    window: int = 4,
-    method: str = "itti",
-    sigma_px: float = SIGMA_PX,
-    num_candidates: int = 5,
-    saliency_map=None,
-) -> SessionAttention:
-    """Attend every pooling window of a simulated session on its (static) scene picture.
-
-    The regression (:class:`~jaxgaze.gp.regression.GazeRegression` or the NN baseline)
-    predicts ``f1``, ``f2`` from the session's reported head pose; the target points
-    start at ``head_centre_image``; windows are ``window`` consecutive frames (T-CYB: 4
-    at 10 fps); :func:`attend_window` runs on ``scene_image`` (an image or a
-    :class:`~jaxgaze.vision.render.RenderedScene`, whose saliency is computed once)
-    with the session's object boxes. Q1/Q2 after saliency use the chosen location;
-    the regression-alone scores use the pooled estimate on the same windows.
-    """
-    if not isinstance(session, TabletopSession):
-        raise TypeError(f"session must be a TabletopSession, got {type(session).__name__}")
-    image = getattr(scene_image, "image", scene_image)
-    smap = saliency(image, method) if saliency_map is None else np.asarray(saliency_map)
-    head = np.asarray(session.head_centre_image, np.float64)
-    _, _, points, cov = _points_and_covariances(regression, _features(regression, session), head)
-    boxes = np.asarray(session.object_boxes_image, np.float64)
-    centres = np.asarray(session.object_centres_image, np.float64)
-    pooled = tg.pool(points, window, labels=session.target)
-    n = len(pooled.valid)
-    K = len(boxes)
-    out = dict(attended=np.zeros(n, bool), attended_xy=pooled.values.copy(), probability=np.zeros(n),
-               chosen_object=np.full(n, -1), object_probabilities=np.zeros((n, K)), none_probability=np.ones(n),
-               region_box=np.full((n, 4), np.nan))
-    for b in range(n):
-        rows = slice(b * window, (b + 1) * window)
-        try:
-            a = attend_window(None, points[rows], cov[rows], method=method, sigma_px=sigma_px,
-                              num_candidates=num_candidates, object_boxes=boxes, saliency_map=smap)
-        except ValueError as err:
-            if _NO_LOCATION not in str(err):
-                raise
-            continue  # flagged: attended False, the pooled estimate stands
-        out["attended"][b] = True
-        out["attended_xy"][b], out["probability"][b], out["chosen_object"][b] = a.xy, a.probability, a.chosen_object
-        out["object_probabilities"][b], out["none_probability"][b], out["region_box"][b] = (
-            a.object_probabilities, a.none_probability, a.region_box)
-
-    def scores(p):
-        return (tg.q1(p, boxes, pooled.labels, valid=pooled.valid).mean,
-                tg.q2(p, centres, pooled.labels, valid=pooled.valid).mean)
-
-    return SessionAttention(
-        start_frame=np.arange(n) * window, labels=pooled.labels, valid=pooled.valid, target_xy=pooled.values,
-        **out, **dict(zip(("q1", "q2"), scores(out["attended_xy"]))),
-        **dict(zip(("q1_regression", "q2_regression"), scores(pooled.values))),
-        q1_frames=tg.q1(points, boxes, session.target).mean, q2_frames=tg.q2(points, centres, session.target).mean,
-    )
-
-
-class AttentionScores(NamedTuple):
-    """T-CYB Table I/II entries for one regression method, split kind and picture condition.
-
-    ``q1_frames``/``q2_frames``: regression alone per frame; ``q1_pooled``/``q2_pooled``:
-    regression alone, pooled; ``q1_saliency``/``q2_saliency``: ``{saliency method: score}``
-    after saliency. Means over test sessions, then over splits.
-    """
-
-    method: str
-    split: str
-    condition: str
-    q1_frames: float
-    q2_frames: float
-    q1_pooled: float
-    q2_pooled: float
-    q1_saliency: dict
-    q2_saliency: dict
-
-
-def evaluate_attention(
-    sessions: Sequence[TabletopSession],
-    *,
-    key,
-    render_key,
-    splits: Sequence[str] = ("self", "cross"),
-    methods: Sequence[str] = ("gpr", "nn"),
-    saliency_methods: Sequence[str] = SALIENCY_METHODS,
-    conditions: Sequence[str] = ("natural",),
-    window: int = 4,
-    max_splits: int | None = None,
-    max_train_frames: int | None = 600,
-    progress: bool = False,
-) -> list[AttentionScores]:
-    """T-CYB Tables I–II on simulated sessions: regression alone vs regression + saliency.
-
-    For each split kind (``"self"``: another session of the same person; ``"cross"``: train
-    on the other people, test on one; :mod:`jaxgaze.gp.target`) and regression method,
-    the model is fitted as :func:`jaxgaze.gp.evaluate.evaluate_split` fits it (same
-    training-frame thinning) on the head poses, then every test session is rendered
-    (:func:`~jaxgaze.vision.render.render_tabletop_scene`, one key per session from
-    ``render_key``, so a session looks the same under every condition but for the
-    condition) and attended with each saliency method. Pictures do not enter the
-    regression, so the regression-alone scores do not depend on the condition.
-    Returns one :class:`AttentionScores` per (method, split, condition), in that order.
-    """
-    from tqdm.auto import tqdm
-
-    from jaxgaze.gp.evaluate import fit_regressor, training_data
-    from jaxgaze.vision.render import render_tabletop_scene
-
-    makers = {"self": tg.self_referencing_splits, "cross": tg.cross_referencing_splits}
-    unknown = [s for s in splits if s not in makers]
-    if unknown:
-        raise ValueError(f"splits must be 'self' and/or 'cross', got {unknown}")
-    jobs = [(kind, m, tr, te) for kind in splits for m in methods
-            for tr, te in makers[kind](sessions)[: max_splits or None]]
-    keys = jax.random.split(key, len(jobs))
-    maps: dict = {}
-
-    def smap(i, condition, sal):
-        if (i, condition, sal) not in maps:
-            scene = render_tabletop_scene(sessions[i], key=jax.random.fold_in(render_key, i), condition=condition)
-            maps[(i, condition, sal)] = saliency(scene.image, sal)
-        return maps[(i, condition, sal)]
-
-    results: dict = {}
-    for (kind, m, tr, te), k in zip(tqdm(jobs, desc="splits", disable=not progress), keys):
-        model = fit_regressor(m, *training_data(sessions, tr, max_train_frames), k)
-        for condition in conditions:
-            rows = []
-            for i in te:
-                per = {sal: attend_session(sessions[i], model, None, window=window, method=sal,
-                                           saliency_map=smap(i, condition, sal)) for sal in saliency_methods}
-                first = next(iter(per.values()))
-                rows.append([first.q1_frames, first.q2_frames, first.q1_regression, first.q2_regression]
-                            + [v for sal in saliency_methods for v in (per[sal].q1, per[sal].q2)])
-            results.setdefault((kind, m, condition), []).append(np.mean(rows, axis=0))
-    out = []
-    order = sorted(results, key=lambda r: (list(methods).index(r[1]), list(splits).index(r[0]),
-                                          list(conditions).index(r[2])))
-    for kind, m, condition in order:
-        values = results[(kind, m, condition)]
-        v = np.mean(values, axis=0)
-        sal = {s: (float(v[4 + 2 * j]), float(v[5 + 2 * j])) for j, s in enumerate(saliency_methods)}
-        out.append(AttentionScores(m, kind, condition, *(float(x) for x in v[:4]),
-                                   {s: q[0] for s, q in sal.items()}, {s: q[1] for s, q in sal.items()}))
-    return out
-
-
-_SHORT = {"itti": "Itti", "spectral_residual": "SR"}
-
-
-def format_attention_table(scores: Sequence[AttentionScores], *, by: str = "split") -> str:
-    """A markdown table: Q1 / Q2 for Regr. (frames), Regr. pooled and Regr. + each saliency method.
-
-    ``by="split"`` labels rows by method and split (Table I), ``by="condition"`` by
-    condition (Table II).
-    """
-    sal = list(scores[0].q1_saliency) if scores else []
-    head = ["method", "split"] if by == "split" else ["condition"]
-    cols = ["Regr.", "Regr. pooled"] + [f"Regr.+{_SHORT.get(s, s)}" for s in sal]
-    lines = ["| " + " | ".join(head + cols) + " |", "|" + "---|" * (len(head) + len(cols))]
-    for s in scores:
-        label = [s.method.upper(), s.split] if by == "split" else [s.condition]
-        cells = [(s.q1_frames, s.q2_frames), (s.q1_pooled, s.q2_pooled)]
-        cells += [(s.q1_saliency[m], s.q2_saliency[m]) for m in sal]
-        lines.append("| " + " | ".join(label + [f"{a:.2f} / {b:.2f}" for a, b in cells]) + " |")
-    return "\n".join(lines)
 
 
 # ---------------------------------------------------------------------------
@@ -573,7 +354,7 @@ def attend_frames(
     the head centre in the image is the projected front of the face (the cylinder's
     centre plus ``half_depth`` along the facing direction). The regression (trained on
     ``(pitch, yaw, roll)``, or with the position appended if it has 6 features) predicts
-    ``f1``, ``f2`` per frame, :func:`~jaxgaze.gp.target.target_point` and
+    ``f1``, ``f2`` per frame, :func:`~jaxgaze.headpose.target.target_point` and
     :func:`target_point_covariance` give the target points, and each non-overlapping
     window of ``window`` frames (a trailing incomplete one is dropped) is attended by
     :func:`attend_window` on its **last** frame, from the points of its tracked frames.
@@ -623,7 +404,7 @@ def attend_frames(
         feats = track.pose if width_features != 6 else np.concatenate([track.pose, track.translation], 1)
         # predict every frame (one array shape per video: one compilation), lost ones on zeros, then drop them
         fill = tracked[:, None]
-        d, y, points, cov = _points_and_covariances(regression, np.where(fill, feats, 0.0),
+        d, y, points, cov = target_points_and_covariances(regression, np.where(fill, feats, 0.0),
                                                     np.where(fill, head_xy, 0.0))
         d, y = np.where(tracked, d, np.nan), np.where(tracked, y, np.nan)
         points, cov = np.where(fill, points, np.nan), np.where(fill[:, :, None], cov, np.nan)
@@ -642,9 +423,9 @@ def attend_frames(
             a = attend_window(last[b], points[sel], cov[sel], method=method, sigma_px=sigma_px,
                               num_candidates=num_candidates)
         except ValueError as err:
-            if _NO_LOCATION not in str(err):
+            if NO_LOCATION not in str(err):
                 raise
-            rows.append((*pooled, nan2, nan4, 0.0, False, head_xy[sel].mean(0), _NO_LOCATION))
+            rows.append((*pooled, nan2, nan4, 0.0, False, head_xy[sel].mean(0), NO_LOCATION))
             continue
         rows.append((*pooled, a.xy, a.region_box, a.probability, True, head_xy[sel].mean(0), ""))
     pose, direction, depth, target, attended, region, prob, valid, hxy, reason = zip(*rows)

@@ -15,16 +15,16 @@ Frames (``docs/conventions.md``; radians inside, degrees only in ``_deg`` names)
   of the face and ``φ > 0`` goes to the person's left.
 * **optical** camera frame: +x right, +y down, +z forward (OpenCV), metres.
   Pinhole ``u = f X/Z + W/2``, ``v = f Y/Z + H/2`` as
-  :func:`jaxgaze.simulate_tabletop.project_optical_to_image`, in the image
+  :func:`jaxgaze.simulate.tabletop.project_optical_to_image`, in the image
   frame whose origin is the **top-left corner** of the top-left pixel, so the
   pixel in column ``i``, row ``j`` is centred on ``(i + ½, j + ½)``. (With
   this convention ``cv2.pyrDown`` halves coordinates exactly.)
 * **frontal** frame: the head frame in the eye-contact pose at a position
   ``p``: +x points from ``p`` to the camera centre, +y is the person's left
   (the image's right), +z is up (:func:`frontal_rotation`, built as
-  ``R_optical_from_frontal`` in :mod:`jaxgaze.simulate_tabletop`).
+  ``R_optical_from_frontal`` in :mod:`jaxgaze.simulate.tabletop`).
 * **pose** ``(pitch, yaw, roll)`` of the head relative to the frontal frame,
-  with the signs of :mod:`jaxgaze.simulate_tabletop`:
+  with the signs of :mod:`jaxgaze.simulate.tabletop`:
   ``R_frontal_from_head = R_z(yaw) R_y(−pitch) R_x(roll)``; **yaw > 0 turns
   the face to the person's left** (towards the image's right), **pitch > 0
   turns it up**, **roll > 0 turns about the forward axis from +y to +z** (the

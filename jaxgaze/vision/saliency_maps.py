@@ -20,7 +20,7 @@ Coordinates are image coordinates (:mod:`jaxgaze.vision.images`, ``docs/conventi
 ``map[i, j]`` (row ``i``, column ``j``) covers ``[j, j + 1] × [i, i + 1]`` and has its
 centre at ``(j + ½, i + ½)``. Inputs (mask centres, fixations passed back in) and
 outputs (fixations at pixel centres, region boxes on pixel edges) are floats in
-these coordinates, the same as :mod:`jaxgaze.simulate_tabletop`'s boxes and centres.
+these coordinates, the same as :mod:`jaxgaze.simulate.tabletop`'s boxes and centres.
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ same rotation errors (it locks in the error of the initial box: yaw RMS
 vs 2.6 mm) and costs about 25 % more time, so it is an option, not the default.
 
 Poses are ``(pitch, yaw, roll)`` of ``R_frontal_from_head`` relative to the
-initial frontal frame, signs as :mod:`jaxgaze.simulate_tabletop`: yaw > 0 to
+initial frontal frame, signs as :mod:`jaxgaze.simulate.tabletop`: yaw > 0 to
 the person's left (image right), pitch > 0 up, roll > 0 left ear up.
 When the pose leaves ``±50°`` pitch, ``±40°`` yaw or ``±20°`` roll, the face
 is detected again in that frame and the head reset to frontal on it

@@ -54,7 +54,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxgaze.geometry import axis_angle_to_rotation_matrix, orthonormal_basis, unit, yaw_pitch_to_direction
-from jaxgaze.simulate import _Pool
+from jaxgaze.simulate.scenes import _Pool
 
 __all__ = [
     "Mounting",

@@ -53,7 +53,7 @@ from jaxgaze._batching import (
     repeat_last,
 )
 from jaxgaze.geometry import orthonormal_basis
-from jaxgaze.meanshift_kernel import fused_meanshift
+from jaxgaze.concurrence.meanshift_pallas import fused_meanshift
 from jaxgaze.rays import GazeRays
 
 __all__ = [

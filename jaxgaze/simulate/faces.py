@@ -45,15 +45,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgaze.facial.face_model import R_OPTICAL_FROM_FRONTAL, generic_face
+from jaxgaze.facial.face_model import R_OPTICAL_FROM_FRONTAL, Hypotheses, generic_face
+from jaxgaze.facial.spatial import fit_spatial_model
 from jaxgaze.geometry import head_pose_to_rotation
 
 __all__ = [
+    "default_spatial_model_fit",
+    "write_default_spatial_models",
     "IMAGE_WIDTH",
     "IMAGE_HEIGHT",
     "FOCAL_PX",
     "R_OPTICAL_FROM_FRONTAL",
-    "Hypotheses",
+
     "SimulatedFaces",
     "rotation_frontal_from_head",
     "simulate_faces",
@@ -63,19 +66,6 @@ IMAGE_WIDTH = 320
 IMAGE_HEIGHT = 240
 FOCAL_PX = 300.0
 #: columns: head +x (forward) → optical −z, +y (left) → optical +x, +z (up) → optical −y.
-
-
-class Hypotheses(NamedTuple):
-    """Facial-feature ROI hypotheses, features in the order of :data:`FEATURES`.
-
-    ``H`` slots per feature; an empty slot has confidence 0 (and position 0).
-    Leading batch dims ``...`` (e.g. ``N`` faces) are allowed.
-    """
-
-    positions: np.ndarray  # (..., 4, H, 2) ROI centres, image px
-    confidences: np.ndarray  # (..., 4, H) p(H|I) in [0, 1]; 0 = empty slot
-    is_true: np.ndarray  # (..., 4, H) bool, the slot is the true feature (ground truth)
-
 
 class SimulatedFaces(NamedTuple):
     """``N`` simulated faces with ground truth. Angles in radians."""
@@ -90,7 +80,6 @@ class SimulatedFaces(NamedTuple):
     face_size_px: np.ndarray  # (N,) about 2 × the projected inter-ocular distance
     hypotheses: Hypotheses  # fields (N, 4, H, ...)
 
-
 def _seed(key) -> np.ndarray:
     if isinstance(key, (jax.Array, np.ndarray)):
         if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and key.shape == ():
@@ -99,13 +88,11 @@ def _seed(key) -> np.ndarray:
             return np.asarray(key).ravel()
     raise ValueError("key must be a single jax.random key such as jax.random.key(0)")
 
-
 def rotation_frontal_from_head(yaw, pitch, roll) -> np.ndarray:
     """``R_z(yaw) R_y(−pitch) R_x(roll)`` (:func:`jaxgaze.geometry.head_pose_to_rotation`), ``(..., 3, 3)``."""
     pose = np.stack(np.broadcast_arrays(*(np.asarray(a, float) for a in (pitch, yaw, roll))), axis=-1)
     with jax.enable_x64(True):
         return np.asarray(head_pose_to_rotation(jnp.asarray(pose, jnp.float64)), np.float64)
-
 
 def simulate_faces(
     key,
@@ -217,3 +204,19 @@ def simulate_faces(
         yaw, pitch, roll, profile, points_image, feats, visible, size, Hypotheses(pos, np.clip(conf, 0.0, 1.0), is_true)
     )
 
+
+def default_spatial_model_fit(view: str = "mixed"):
+    """Fit the spatial model that :func:`jaxgaze.facial.image_features.default_spatial_model`
+    ships for ``view``: 4000 simulated faces (key 0, ``shape_sd = 0.12``)."""
+    faces = simulate_faces(jax.random.PRNGKey(0), 4000, view=view, shape_sd=0.12)
+    return fit_spatial_model(faces.features_image, faces.visible)
+
+
+def write_default_spatial_models(folder) -> None:
+    """Write ``spatial_model_{frontal,mixed}.npz`` into ``folder`` (the package's ``data/``)."""
+    import os
+
+    for view in ("frontal", "mixed"):
+        model = default_spatial_model_fit(view)
+        np.savez(os.path.join(folder, f"spatial_model_{view}.npz"),
+                 **{name: np.asarray(value) for name, value in zip(model._fields, model)})

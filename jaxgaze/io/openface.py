@@ -26,20 +26,18 @@ errors raise :class:`OpenFaceFileError` or :class:`SpeechFileError` (both
 
 from __future__ import annotations
 
-import csv
 import math
-import operator
 import os
 import warnings
-from typing import NamedTuple, Optional, Sequence
+from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxgaze.geometry import direction_to_yaw_pitch, unit
-from jaxgaze.poses import R_OURS_FROM_OPENCV
-from jaxgaze.textfiles import InputFileError, header_problem, parse_number, read_lines
+from jaxgaze.geometry import R_OURS_FROM_OPENCV
+from jaxgaze.io.text import InputFileError, header_problem
 
 __all__ = [
     "OPENFACE_COLUMNS",
@@ -47,12 +45,6 @@ __all__ = [
     "OpenFaceFileError",
     "OpenFaceTrack",
     "read_openface",
-    "SpeechFileError",
-    "SpeechSegments",
-    "read_rttm",
-    "read_segments_csv",
-    "speaking_flags",
-    "speaking_at",
 ]
 
 #: Columns :func:`read_openface` needs (``face_id`` is used when present).
@@ -92,14 +84,6 @@ _TIME_DECIMALS = 9
 
 class OpenFaceFileError(InputFileError):
     """An OpenFace CSV is malformed. The message starts with ``path, line N:``."""
-
-
-class SpeechFileError(InputFileError):
-    """An RTTM or segment CSV is malformed. The message starts with ``path, line N:``."""
-
-
-_read_lines = read_lines
-_number = parse_number
 
 
 # ---------------------------------------------------------------------------
@@ -305,244 +289,3 @@ def read_openface(path, *, min_confidence: float = 0.75, face_id: Optional[int] 
     )
 
 
-# ---------------------------------------------------------------------------
-# Speaking status
-
-
-class SpeechSegments(NamedTuple):
-    """Speech segments ``[start, end)`` in seconds: ``start`` and ``end`` ``(K,)``
-    float64 and ``speaker`` (a tuple of ``K`` names). The readers merge
-    overlapping segments of one speaker and sort by ``(start, end, speaker)``."""
-
-    start: np.ndarray
-    end: np.ndarray
-    speaker: tuple
-
-    @property
-    def speakers(self) -> tuple:
-        """The speaker names, sorted and unique."""
-        return tuple(sorted(set(self.speaker)))
-
-
-def _segments(path, starts, ends, speakers, lines) -> SpeechSegments:
-    """Merge overlapping segments of the same speaker (one warning), then sort."""
-    merged, notes = [], []
-    for name in sorted(set(speakers)):
-        mine = sorted((s, e, n) for s, e, sp, n in zip(starts, ends, speakers, lines) if sp == name)
-        current = list(mine[0])
-        for s, e, n in mine[1:]:
-            if s < current[1]:
-                notes.append(f"'{name}' line {n} overlaps line {current[2]}")
-                current[1] = max(current[1], e)
-            else:
-                merged.append((current[0], current[1], name))
-                current = [s, e, n]
-        merged.append((current[0], current[1], name))
-    if notes:
-        warnings.warn(
-            f"{os.fspath(path)}: merged {len(notes)} overlapping segment(s) of the same speaker: "
-            + "; ".join(notes),
-            stacklevel=3,
-        )
-    merged.sort()
-    return SpeechSegments(
-        np.array([m[0] for m in merged], dtype=np.float64),
-        np.array([m[1] for m in merged], dtype=np.float64),
-        tuple(m[2] for m in merged),
-    )
-
-
-def read_rttm(path, *, file_id: Optional[str] = None) -> SpeechSegments:
-    """Read speech segments from an RTTM file (NIST Rich Transcription Time Marked).
-
-    Each ``SPEAKER <file> <channel> <onset> <duration> <NA> <NA> <speaker> <NA> <NA>``
-    line (whitespace-separated, seconds) gives the segment
-    ``[onset, onset + duration)`` (rounded to 1 ns). Other line types
-    (``SPKR-INFO``, ``LEXEME``, ...) and ``;;`` comments are ignored. Segments of
-    every file id are kept unless ``file_id`` selects one. Overlapping segments of
-    one speaker are merged, with a warning.
-
-    Raises :class:`SpeechFileError` (``path, line N:``) for an empty file, a
-    SPEAKER line with fewer than 8 fields, a non-numeric or non-finite onset or
-    duration, a negative duration, no SPEAKER lines, or no lines for ``file_id``.
-    """
-    lines = _read_lines(path, SpeechFileError)
-    if not any(ln.strip() for ln in lines):
-        raise SpeechFileError(
-            "empty file: expected RTTM lines "
-            "'SPEAKER <file> <channel> <onset> <duration> <NA> <NA> <speaker> <NA> <NA>'",
-            path,
-            1,
-        )
-    starts, ends, names, where, files = [], [], [], [], []
-    for number, raw in enumerate(lines, start=1):
-        fields = raw.split()
-        if not fields or fields[0].startswith(";;") or fields[0] != "SPEAKER":
-            continue
-        if len(fields) < 8:
-            raise SpeechFileError(
-                "SPEAKER line needs at least 8 fields "
-                f"'SPEAKER <file> <channel> <onset> <duration> <NA> <NA> <speaker>', got {len(fields)}",
-                path,
-                number,
-            )
-        files.append(fields[1])
-        if file_id is not None and fields[1] != file_id:
-            continue
-        onset = _number(fields[3], "onset", path, number, SpeechFileError)
-        duration = _number(fields[4], "duration", path, number, SpeechFileError)
-        if duration < 0:
-            raise SpeechFileError(f"negative duration {fields[4]}", path, number)
-        starts.append(onset)
-        ends.append(round(onset + duration, _TIME_DECIMALS))
-        names.append(fields[7])
-        where.append(number)
-    if not files:
-        raise SpeechFileError("no SPEAKER lines", path)
-    if not starts:
-        raise SpeechFileError(
-            f"no SPEAKER lines for file '{file_id}' (files present: {', '.join(sorted(set(files)))})", path
-        )
-    return _segments(path, starts, ends, names, where)
-
-
-def read_segments_csv(path) -> SpeechSegments:
-    """Read speech segments from a CSV file with a header row.
-
-    Columns ``start, end, speaker`` (any order, case-insensitive; other columns
-    ignored; blank lines and lines starting with ``#`` skipped): the segment
-    ``[start, end)`` in seconds of ``speaker``. Overlapping segments of one speaker
-    are merged, with a warning.
-
-    Raises :class:`SpeechFileError` (``path, line N:``) for an empty file, a
-    missing column, no data rows, a row with the wrong number of fields, a
-    non-numeric or non-finite time, ``end < start`` or an empty speaker name.
-    """
-    required = ("start", "end", "speaker")
-    lines = _read_lines(path, SpeechFileError)
-    content = [(n + 1, ln) for n, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")]
-    if not content:
-        raise SpeechFileError("empty file: expected a header row with columns start, end, speaker", path, 1)
-    rows = []
-    for number, text in content:
-        try:
-            rows.append((number, next(csv.reader([text], strict=True))))
-        except csv.Error as exc:
-            raise SpeechFileError(f"malformed CSV: {exc}", path, number) from None
-    header_line, header = rows[0]
-    names = [cell.strip().lower() for cell in header]
-    problem = header_problem(names, required, hint="need start, end, speaker", watched=required)
-    if problem:
-        raise SpeechFileError(problem, path, header_line)
-    if len(rows) == 1:
-        raise SpeechFileError("no data rows after the header", path, header_line)
-    i_start, i_end, i_speaker = (names.index(c) for c in required)
-    starts, ends, speakers, where = [], [], [], []
-    for number, row in rows[1:]:
-        if len(row) != len(header):
-            raise SpeechFileError(f"expected {len(header)} fields as in the header, got {len(row)}", path, number)
-        start = _number(row[i_start].strip(), "column 'start'", path, number, SpeechFileError)
-        end = _number(row[i_end].strip(), "column 'end'", path, number, SpeechFileError)
-        speaker = row[i_speaker].strip()
-        if end < start:
-            raise SpeechFileError(f"end {row[i_end].strip()} is before start {row[i_start].strip()}", path, number)
-        if not speaker:
-            raise SpeechFileError("empty speaker name", path, number)
-        starts.append(start)
-        ends.append(end)
-        speakers.append(speaker)
-        where.append(number)
-    return _segments(path, starts, ends, speakers, where)
-
-
-def speaking_flags(
-    segments: SpeechSegments, speakers: Sequence[str], num_frames: int, fps: float, start_time: float = 0.0
-) -> np.ndarray:
-    """``(len(speakers), num_frames)`` bool: whether each speaker speaks at each frame.
-
-    Frame ``t`` is at time ``start_time + t / fps`` seconds (rounded to 1 ns) and
-    is speaking for a speaker if that time lies in one of the speaker's segments
-    ``[start, end)``. Segments of speakers not in ``speakers`` are ignored. Warns
-    (i) naming requested speakers that have no segment at all ("unknown speaker";
-    their rows are all False), and (ii) with the number of frames where two or
-    more of ``speakers`` speak at once (overlapping speech: all of them are True).
-
-    Raises ``ValueError`` for a negative ``num_frames``, ``fps ≤ 0`` or non-finite,
-    a non-finite ``start_time``, duplicate ``speakers``, or segments whose arrays
-    disagree in length, are not finite or have ``end < start``; ``TypeError`` if
-    ``speakers`` is a single string.
-    """
-    if isinstance(speakers, str):
-        raise TypeError(f"speaking_flags: speakers must be a sequence of names, not the string {speakers!r}")
-    speakers = [str(s) for s in speakers]
-    if len(set(speakers)) != len(speakers):
-        raise ValueError(f"speaking_flags: duplicate names in speakers {speakers}")
-    num_frames = operator.index(num_frames)
-    fps, start_time = float(fps), float(start_time)
-    if num_frames < 0:
-        raise ValueError(f"speaking_flags: num_frames must be ≥ 0, got {num_frames}")
-    if not (math.isfinite(fps) and fps > 0):
-        raise ValueError(f"speaking_flags: fps must be finite and > 0, got {fps}")
-    if not math.isfinite(start_time):
-        raise ValueError(f"speaking_flags: start_time must be finite, got {start_time}")
-    start = np.asarray(segments.start, dtype=np.float64).reshape(-1)
-    end = np.asarray(segments.end, dtype=np.float64).reshape(-1)
-    names = tuple(segments.speaker)
-    if not (start.shape == end.shape == (len(names),)):
-        raise ValueError(
-            f"speaking_flags: segments have {start.shape[0]} starts, {end.shape[0]} ends and {len(names)} speakers"
-        )
-    if not (np.all(np.isfinite(start)) and np.all(np.isfinite(end)) and np.all(end >= start)):
-        raise ValueError("speaking_flags: segment times must be finite with end ≥ start")
-
-    times = start_time + np.arange(num_frames) / fps
-    return _flags_at(start, end, names, speakers, times, "speaking_flags")
-
-
-def speaking_at(segments: SpeechSegments, speakers: Sequence[str], times) -> np.ndarray:
-    """:func:`speaking_flags` at given frame times ``(T,)`` (seconds, increasing), e.g. when frames were dropped.
-
-    Same rule (``start ≤ time < end``, times rounded to 1 ns) and the same warnings.
-    """
-    if isinstance(speakers, str):
-        raise TypeError(f"speaking_at: speakers must be a sequence of names, not the string {speakers!r}")
-    speakers = [str(s) for s in speakers]
-    t = np.asarray(times, dtype=np.float64)
-    if t.ndim != 1 or not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
-        raise ValueError("speaking_at: times must be a finite, non-decreasing (T,) array of seconds")
-    start = np.asarray(segments.start, dtype=np.float64).reshape(-1)
-    end = np.asarray(segments.end, dtype=np.float64).reshape(-1)
-    if not (np.all(np.isfinite(start)) and np.all(np.isfinite(end)) and np.all(end >= start)):
-        raise ValueError("speaking_at: segment times must be finite with end ≥ start")
-    return _flags_at(start, end, tuple(segments.speaker), speakers, t, "speaking_at")
-
-
-def _flags_at(start, end, names, speakers, times, caller: str) -> np.ndarray:
-    """Flags ``(len(speakers), T)`` at the given times, with the unknown-speaker and overlap warnings."""
-    num_frames = times.shape[0]
-    unknown = [s for s in speakers if s not in set(names)]
-    if unknown:
-        warnings.warn(
-            f"{caller}: unknown speaker(s) {', '.join(repr(s) for s in unknown)} have no segments "
-            f"(known: {', '.join(repr(s) for s in sorted(set(names)))}); their flags are all False",
-            stacklevel=3,
-        )
-    times = np.round(times, _TIME_DECIMALS)
-    flags = np.zeros((len(speakers), num_frames), dtype=bool)
-    for row, name in enumerate(speakers):
-        mine = np.array([n == name for n in names], dtype=bool)
-        # Frames lo..hi-1 satisfy start ≤ time < end; a difference array marks them.
-        lo = np.searchsorted(times, start[mine], side="left")
-        hi = np.searchsorted(times, end[mine], side="left")
-        marks = np.zeros(num_frames + 1, dtype=np.int64)
-        np.add.at(marks, lo, 1)
-        np.add.at(marks, hi, -1)
-        flags[row] = np.cumsum(marks[:-1]) > 0
-    overlapping = int(np.count_nonzero(flags.sum(axis=0) >= 2))
-    if overlapping:
-        warnings.warn(
-            f"{caller}: {overlapping} of {num_frames} frames have two or more of the speakers speaking at once "
-            "(overlapping speech); they are flagged for each of them",
-            stacklevel=3,
-        )
-    return flags

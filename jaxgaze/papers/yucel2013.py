@@ -1,12 +1,12 @@
 """Evaluate the head-pose regressors on table-top sessions: T-CYB Table I and the CogSci table.
 
-For one train/test split (:func:`~jaxgaze.gp.target.self_referencing_splits`,
-:func:`~jaxgaze.gp.target.cross_referencing_splits`) the regressors of
-:mod:`jaxgaze.gp.regression` (GPR or the NN baseline) are fitted on the
+For one train/test split (:func:`~jaxgaze.headpose.target.self_referencing_splits`,
+:func:`~jaxgaze.headpose.target.cross_referencing_splits`) the regressors of
+:mod:`jaxgaze.headpose.regression` (GPR or the NN baseline) are fitted on the
 training sessions' head poses and scored on each test session:
 
 * **T-CYB** (eq. 14–15): the target point (direction ``f1`` meets row ``f2``,
-  :func:`~jaxgaze.gp.target.target_point`) per frame; Q1 = inside the attended
+  :func:`~jaxgaze.headpose.target.target_point`) per frame; Q1 = inside the attended
   box, Q2 = the attended centre is the nearest; mean over objects, as in Table I.
   ``pooled`` scores average the points over ``window`` frames first. The
   head-pose baseline replaces ``f1`` by the raw head direction in the image and
@@ -29,9 +29,9 @@ from typing import NamedTuple, Sequence
 import jax
 import numpy as np
 
-from jaxgaze.gp import target as tg
-from jaxgaze.gp.regression import fit_gaze_regression, fit_gaze_regression_nn
-from jaxgaze.simulate_tabletop import TabletopSession, head_pose_features
+from jaxgaze.headpose import target as tg
+from jaxgaze.headpose.regression import fit_gaze_regression, fit_gaze_regression_nn
+from jaxgaze.simulate.tabletop import TabletopSession, head_pose_features
 
 __all__ = ["GROUPS", "RegressionScores", "evaluate_split", "evaluate_regression", "format_table_i",
            "format_cogsci_table"]

@@ -124,7 +124,7 @@ from jaxgaze.geometry import (
     unit,
     yaw_pitch_to_direction,
 )
-from jaxgaze.simulate import _Pool, _smooth
+from jaxgaze.simulate.scenes import _Pool, _smooth
 
 __all__ = [
     "PRESETS",

@@ -1,6 +1,6 @@
 """Evaluation of speaker-prior gaze-bias adaptation (Siegfried, Odobez et al. 2017, Sec. 4, Table 1, Figs. 5–6).
 
-For every person of a batch of simulated dyads (:func:`jaxgaze.simulate_dyadic.simulate_dyadic_sessions`)
+For every person of a batch of simulated dyads (:func:`jaxgaze.simulate.dyadic.simulate_dyadic_sessions`)
 :func:`evaluate_bias_methods` estimates the gaze bias ``b`` from the first minute
 (the *adaptation window*) with the paper's methods and scores the corrected gaze
 ``g + b`` on the rest of the recording:
@@ -458,7 +458,7 @@ def evaluate_bias_methods(
     """Table 1, Fig. 5 and Fig. 6 of Siegfried et al. (2017) on simulated dyads, plus the Bayes fit.
 
     Args:
-        recordings: a :class:`~jaxgaze.simulate_dyadic.DyadicRecording` (one session or a
+        recordings: a :class:`~jaxgaze.simulate.dyadic.DyadicRecording` (one session or a
             batch from ``simulate_dyadic_sessions``) or a sequence of them (e.g. one batch
             per preset). Each person of each session is evaluated; ``scenario`` is the
             recording's preset.

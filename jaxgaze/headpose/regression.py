@@ -12,7 +12,7 @@ Each is a GP with zero prior mean on standardised inputs and outputs (the
 paper's "offset", eq. 6): ``f1`` with rational quadratic + arc-sine + white
 noise, ``f2`` with linear + white noise (:func:`~jaxgaze.gp.kernels.gaze_direction_kernel`,
 :func:`~jaxgaze.gp.kernels.target_depth_kernel`). The neural-network baseline
-(CogSci paper) fits the same two maps with :func:`~jaxgaze.gp.nn.fit_mlp`.
+(CogSci paper) fits the same two maps with :func:`~jaxgaze.headpose.nn.fit_mlp`.
 
 Standardisation uses the training data: inputs per column, outputs by their
 mean and standard deviation; predictions are mapped back, variances scaled by
@@ -30,7 +30,7 @@ from jaxtyping import Array, Float
 
 from jaxgaze.gp.exact import FitResult, FittedGP, fit
 from jaxgaze.gp.kernels import gaze_direction_kernel, target_depth_kernel
-from jaxgaze.gp.nn import MLPFit, fit_mlp
+from jaxgaze.headpose.nn import MLPFit, fit_mlp
 
 __all__ = ["Scaling", "GazePrediction", "GazeRegression", "NNGazeRegression", "fit_gaze_regression",
            "fit_gaze_regression_nn"]
@@ -128,7 +128,7 @@ def fit_gaze_regression(
 ) -> GazeRegression:
     """Fit the ``f1`` (direction) and ``f2`` (depth) GPs by type-II maximum likelihood.
 
-    ``features`` are head poses per frame (e.g. :func:`jaxgaze.simulate_tabletop.head_pose_features`:
+    ``features`` are head poses per frame (e.g. :func:`jaxgaze.simulate.tabletop.head_pose_features`:
     pitch, yaw, roll in radians and the head position in metres); ``direction``
     the image-plane gaze angles (radians) and ``depth`` the target rows (px).
     ``ard`` gives the RQ and arc-sine kernels one lengthscale per feature;
@@ -149,7 +149,7 @@ def fit_gaze_regression(
 
 
 class NNGazeRegression(NamedTuple):
-    """The NN baseline: one :class:`~jaxgaze.gp.nn.MLPFit` each for ``f1`` and ``f2``."""
+    """The NN baseline: one :class:`~jaxgaze.headpose.nn.MLPFit` each for ``f1`` and ``f2``."""
 
     direction_net: MLPFit
     depth_net: MLPFit

@@ -34,7 +34,7 @@ import time
 import typing
 import warnings
 
-from jaxgaze.textfiles import atomic_path, header_problem
+from jaxgaze.io.text import atomic_path, header_problem
 
 __all__ = ["main", "read_rays_csv", "read_calibration_json", "read_camera_poses_csv", "read_gaze_csv",
            "read_targets_csv", "CSV_COLUMNS", "CAMERA_POSE_COLUMNS", "OUTPUT_COLUMNS", "CALIBRATION_KEYS",
@@ -348,7 +348,7 @@ def build_parser() -> argparse.ArgumentParser:
     attend.add_argument("video", metavar="VIDEO",
                         help="a video file OpenCV can read, or a folder of frames (.png, .jpg, ...; natural order)")
     attend.add_argument("--model", required=True, metavar="GP.json",
-                        help="gaze regression written by 'jaxgaze fit-gaze' or jaxgaze.gp.io.save_gaze_regression")
+                        help="gaze regression written by 'jaxgaze fit-gaze' or jaxgaze.io.models.save_gaze_regression")
     attend.add_argument("--output", "--out", dest="out", default="attend.csv", metavar="OUT.csv",
                         help="output CSV, one row per window (default attend.csv; replaced only on success)")
     attend.add_argument("--method", choices=("itti", "spectral_residual"), default="itti",
@@ -375,7 +375,7 @@ def build_parser() -> argparse.ArgumentParser:
     fit_gaze = sub.add_parser(
         "fit-gaze",
         help="fit the gaze regression (f1 direction, f2 depth from head pose) on simulated table-top sessions",
-        description="Simulate table-top sessions (jaxgaze.simulate_tabletop: PEOPLE experimenters, SESSIONS "
+        description="Simulate table-top sessions (jaxgaze.simulate.tabletop: PEOPLE experimenters, SESSIONS "
                     "sessions each, one table and camera), fit the gaze regression of Yücel et al. 2013 on their "
                     "head poses (pitch, yaw, roll, radians, relative to the eye-contact head frame) and write it "
                     "to OUTPUT for 'jaxgaze attend', with metadata focal_px, fps, window and image_size. "
@@ -815,7 +815,7 @@ def _check_output_directory(path: str, what: str = "output") -> None:
 
 
 def _cmd_concurrences(args) -> int:
-    from jaxgaze.concurrence import find_concurrences_over_frames
+    from jaxgaze.concurrence.modes import find_concurrences_over_frames
 
     if args.calibration:
         calibrations = {}
@@ -845,7 +845,7 @@ def _cmd_concurrences(args) -> int:
 
 @contextlib.contextmanager
 def _atomic_path(path: str, what: str = "output"):
-    """:func:`jaxgaze.textfiles.atomic_path`, with an ``OSError`` as a one-line :class:`CLIError`."""
+    """:func:`jaxgaze.io.text.atomic_path`, with an ``OSError`` as a one-line :class:`CLIError`."""
     try:
         with atomic_path(path) as tmp:
             yield tmp
@@ -863,7 +863,7 @@ def _cmd_calibrate(args) -> int:
     import jax
     import numpy as np
 
-    from jaxgaze.calibration import calibrate_cone
+    from jaxgaze.calibration.cone_fit import calibrate_cone
     from jaxgaze.poses import match_frames, points_of_regard
 
     wearer = args.wearer if args.wearer is not None else os.path.splitext(os.path.basename(args.poses_a))[0]
@@ -912,7 +912,7 @@ def _cmd_calibrate(args) -> int:
         with _atomic_output(args.out) as handle:
             handle.write(json.dumps(record, indent=2, allow_nan=False) + "\n")
     else:
-        from jaxgaze.calibration_posterior import calibrate_cone_posterior
+        from jaxgaze.calibration.posterior import calibrate_cone_posterior
 
         import arviz
 
@@ -1017,9 +1017,9 @@ def _cmd_demo(args) -> int:
     import jax
     import numpy as np
 
-    from jaxgaze.concurrence import find_concurrences_over_frames, track_concurrences
-    from jaxgaze.metrics import evaluate, match_concurrences
-    from jaxgaze.simulate import simulate_scene
+    from jaxgaze.concurrence.modes import find_concurrences_over_frames, track_concurrences
+    from jaxgaze.concurrence.metrics import evaluate, match_concurrences
+    from jaxgaze.simulate.scenes import simulate_scene
 
     fmt = _figure_format(args.figure)
     progress = _progress(args)
@@ -1110,7 +1110,7 @@ def _note_warnings(caught, notes: list) -> None:
 
 def _is_openface_header(text: str) -> bool:
     """Whether the first non-blank line names OpenFace's ``gaze_angle_x`` or ``pose_Rx`` column (with
-    only one of them, :func:`jaxgaze.bias.io.read_openface` reports the other as missing)."""
+    only one of them, :func:`jaxgaze.io.openface.read_openface` reports the other as missing)."""
     for line in text.splitlines():
         if line.strip():
             names = {cell.strip().lower() for cell in line.split(",")}
@@ -1206,7 +1206,7 @@ def _read_openface_gaze(path: str, face_id, min_confidence: float, notes: list) 
 
     import numpy as np
 
-    from jaxgaze.bias.io import OpenFaceFileError, read_openface
+    from jaxgaze.io.openface import OpenFaceFileError, read_openface
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -1341,7 +1341,7 @@ def _read_speech(args, notes: list):
     """Speech segments from an RTTM or a CSV (by extension, else by content)."""
     import warnings
 
-    from jaxgaze.bias.io import SpeechFileError, read_rttm, read_segments_csv
+    from jaxgaze.io.openface import SpeechFileError, read_rttm, read_segments_csv
 
     path = args.speech
     text = _read_input_text(path, "speech")
@@ -1391,7 +1391,7 @@ def _cmd_bias(args) -> int:
     import numpy as np
 
     from jaxgaze.bias.estimators import estimate_bias
-    from jaxgaze.bias.io import speaking_at
+    from jaxgaze.io.openface import speaking_at
     from jaxgaze.bias.looking import (
         angular_error,
         candidate_frames,
@@ -1592,7 +1592,7 @@ class _VideoRegression:
             return features
         import numpy as np
 
-        from jaxgaze.gp.regression import Scaling
+        from jaxgaze.headpose.regression import Scaling
 
         width = self.regression.direction_net.params.W1.shape[0]  # the NN baseline
         return Scaling(np.zeros(width), np.ones(width))
@@ -1601,7 +1601,7 @@ class _VideoRegression:
         import jax
         import numpy as np
 
-        from jaxgaze.gp.regression import GazePrediction
+        from jaxgaze.headpose.regression import GazePrediction
 
         with jax.enable_x64(True):
             pred = self.regression.predict(np.asarray(features, np.float64))
@@ -1640,7 +1640,7 @@ def _load_model(path: str):
     """``(regression, metadata)`` from a model file, loaded in float64; errors as :class:`CLIError`."""
     import jax
 
-    from jaxgaze.gp.io import ModelFileError, load_gaze_regression
+    from jaxgaze.io.models import ModelFileError, load_gaze_regression
 
     try:
         with jax.enable_x64(True):
@@ -1683,7 +1683,7 @@ class _VideoFrames:
         self.path, self.max_frames, self.count = path, max_frames, count
 
     def __iter__(self):
-        from jaxgaze.vision.video import iter_frames
+        from jaxgaze.io.video import iter_frames
 
         return iter_frames(self.path, max_frames=self.max_frames)
 
@@ -1695,7 +1695,7 @@ class _CountedVideoFrames(_VideoFrames):
 
 def _cmd_attend(args) -> int:
     from jaxgaze.vision.attend import attend_frames
-    from jaxgaze.vision.video import VideoFileError, frame_count, iter_frames, video_fps
+    from jaxgaze.io.video import VideoFileError, frame_count, iter_frames, video_fps
 
     progress = (not args.quiet and args.progress) if args.progress is not None else _progress(args)
     _check_output_directory(args.out)
@@ -1759,14 +1759,14 @@ def _cmd_attend(args) -> int:
 def _cmd_fit_gaze(args) -> int:
     import jax
 
-    from jaxgaze.gp.evaluate import training_data
-    from jaxgaze.gp.io import save_gaze_regression
-    from jaxgaze.gp.regression import fit_gaze_regression, fit_gaze_regression_nn
-    from jaxgaze.simulate_tabletop import IMAGE_HEIGHT, IMAGE_WIDTH, simulate_tabletop_sessions
+    from jaxgaze.papers.yucel2013 import training_data
+    from jaxgaze.io.models import save_gaze_regression
+    from jaxgaze.headpose.regression import fit_gaze_regression, fit_gaze_regression_nn
+    from jaxgaze.simulate.tabletop import IMAGE_HEIGHT, IMAGE_WIDTH, simulate_tabletop_sessions
 
     _check_output_directory(args.out, "model")
     if args.demo_video is not None:
-        from jaxgaze.vision.video import VIDEO_CODECS
+        from jaxgaze.io.video import VIDEO_CODECS
 
         demo_ext = os.path.splitext(args.demo_video)[1].lower()
         if demo_ext not in VIDEO_CODECS:
@@ -1802,7 +1802,7 @@ def _cmd_fit_gaze(args) -> int:
         "units": "features: head pose (pitch, yaw, roll) in radians relative to the eye-contact (frontal) head "
                  "frame; direction f1: image angle atan2(dy, dx) in radians; depth f2: image row in pixels of "
                  "image_size images with focal length focal_px",
-        "source": "jaxgaze fit-gaze: simulated table-top sessions (jaxgaze.simulate_tabletop)",
+        "source": "jaxgaze fit-gaze: simulated table-top sessions (jaxgaze.simulate.tabletop)",
         "method": args.method,
         "seed": int(args.seed),
         "people": int(args.people),
@@ -1814,7 +1814,7 @@ def _cmd_fit_gaze(args) -> int:
     with _atomic_path(args.out, "model") as tmp:
         save_gaze_regression(tmp, model, metadata=metadata)
         if args.demo_video is not None:
-            from jaxgaze.vision.video import render_tabletop_video, write_video
+            from jaxgaze.io.video import render_tabletop_video, write_video
 
             demo = sessions[num_train]
             frames, _ = render_tabletop_video(demo, key=key_render, num_frames=args.demo_frames)

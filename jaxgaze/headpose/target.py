@@ -573,7 +573,7 @@ def self_referencing_splits(sessions) -> list[tuple[list[int], list[int]]]:
     """Intraclass splits: train on one session of a person, test on another of the same person.
 
     ``sessions`` holds objects with a ``person`` attribute (e.g.
-    :class:`~jaxgaze.simulate_tabletop.TabletopSession`) or plain person ids. One
+    :class:`~jaxgaze.simulate.tabletop.TabletopSession`) or plain person ids. One
     split ``([i], [j])`` per ordered pair ``i ≠ j`` of sessions of one person, in
     order of person then ``i`` then ``j``. People with a single session give none.
 

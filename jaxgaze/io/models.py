@@ -1,7 +1,7 @@
 """Saving and loading fitted gaze regressions (``f1`` direction, ``f2`` depth) as JSON.
 
-:func:`save_gaze_regression` writes a :class:`~jaxgaze.gp.regression.GazeRegression`
-(the paper's two GPs) or a :class:`~jaxgaze.gp.regression.NNGazeRegression` (the
+:func:`save_gaze_regression` writes a :class:`~jaxgaze.headpose.regression.GazeRegression`
+(the paper's two GPs) or a :class:`~jaxgaze.headpose.regression.NNGazeRegression` (the
 CogSci network baseline) to one JSON file, atomically (a temporary file next to
 the target, renamed on success); :func:`load_gaze_regression` rebuilds it. For a
 GP the Cholesky factor is recomputed from the saved kernel, training data and
@@ -70,9 +70,9 @@ from jaxgaze.gp.kernels import (
     White,
     _Parametrised,
 )
-from jaxgaze.gp.nn import MLPFit, MLPParams, Standardisation
-from jaxgaze.gp.regression import GazeRegression, NNGazeRegression, Scaling
-from jaxgaze.textfiles import InputFileError, atomic_path, read_text
+from jaxgaze.headpose.nn import MLPFit, MLPParams, Standardisation
+from jaxgaze.headpose.regression import GazeRegression, NNGazeRegression, Scaling
+from jaxgaze.io.text import InputFileError, atomic_path, read_text
 
 __all__ = ["FORMAT", "VERSION", "KERNEL_TYPES", "ModelFileError", "register_kernel", "kernel_to_json",
            "kernel_from_json", "regression_to_json", "save_gaze_regression", "load_gaze_regression",
@@ -120,7 +120,7 @@ def kernel_to_json(kernel: Kernel) -> dict:
     name = type(kernel).__name__
     if KERNEL_TYPES.get(name) is not type(kernel):
         raise TypeError(f"cannot save kernel {name}: not a registered kernel type (register it with "
-                        "jaxgaze.gp.io.register_kernel); known: " + ", ".join(sorted(KERNEL_TYPES)))
+                        "jaxgaze.io.models.register_kernel); known: " + ", ".join(sorted(KERNEL_TYPES)))
     return {
         "type": name,
         "parameters": {p: _value(getattr(kernel, p)) for p in kernel.PARAMETERS},

@@ -1,7 +1,7 @@
 """Rendered table-top scenes with ground truth (Yücel et al., T-CYB 2013, Sec. VII, Table II).
 
 :func:`render_tabletop_scene` draws, with OpenCV, the robot camera's 320 × 240
-picture of a :class:`~jaxgaze.simulate_tabletop.TabletopSession` (or of explicit
+picture of a :class:`~jaxgaze.simulate.tabletop.TabletopSession` (or of explicit
 object boxes): a low-contrast wall with some clutter (shelf and books, a poster,
 a clock, a cabinet), a wooden table seen in perspective, and ``K`` cube-shaped
 objects of distinct saturated colours, each with a texture (plain, stripes, dots,
@@ -11,7 +11,7 @@ rendered head can be pasted in with :func:`composite`.
 
 Images are ``(240, 320, 3)`` **RGB** (not OpenCV's BGR) ``uint8``, in the image
 frame: x right, y down. Box and centre coordinates are those of
-:mod:`jaxgaze.simulate_tabletop` (origin at the top-left pixel *corner*, so pixel
+:mod:`jaxgaze.simulate.tabletop` (origin at the top-left pixel *corner*, so pixel
 ``(row i, col j)`` covers ``[j, j + 1] × [i, i + 1]``).
 
 Conditions (T-CYB Table II): ``"natural"``; ``"artificial"`` (a warm tungsten
@@ -30,7 +30,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from jaxgaze.simulate_tabletop import (
+from jaxgaze.simulate.tabletop import (
     IMAGE_HEIGHT,
     IMAGE_WIDTH,
     TabletopSession,
@@ -411,7 +411,7 @@ def render_tabletop_scene(session_or_boxes, *, key, condition: str = "natural", 
     """Draw a 320 × 240 RGB table-top picture with ``K`` cubes at known boxes.
 
     Args:
-        session_or_boxes: a :class:`~jaxgaze.simulate_tabletop.TabletopSession` (its cubes,
+        session_or_boxes: a :class:`~jaxgaze.simulate.tabletop.TabletopSession` (its cubes,
             camera and head position are used) or ``(K, 4)`` boxes ``(x_min, y_min, x_max,
             y_max)`` px inside the image, ``1 <= K <= 12``, each drawn as a cube filling it.
         key: a single ``jax.random`` key; the same key gives the same scene under every

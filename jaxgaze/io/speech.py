@@ -1,0 +1,159 @@
+"""Speech segment files: NIST RTTM and a CSV of ``start,end,speaker`` (Siegfried et al. 2017, Sec. 3).
+
+File errors raise :class:`SpeechFileError` whose message starts with ``path, line N:``.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import warnings
+from typing import Optional
+
+import numpy as np
+
+from jaxgaze.bias.speech import TIME_DECIMALS, SpeechSegments
+from jaxgaze.io.text import InputFileError, header_problem, parse_number, read_lines
+
+__all__ = ["SpeechFileError", "read_rttm", "read_segments_csv"]
+
+
+class SpeechFileError(InputFileError):
+    """An RTTM or segment CSV is malformed. The message starts with ``path, line N:``."""
+
+
+_read_lines = read_lines
+_number = parse_number
+
+
+
+def _segments(path, starts, ends, speakers, lines) -> SpeechSegments:
+    """Merge overlapping segments of the same speaker (one warning), then sort."""
+    merged, notes = [], []
+    for name in sorted(set(speakers)):
+        mine = sorted((s, e, n) for s, e, sp, n in zip(starts, ends, speakers, lines) if sp == name)
+        current = list(mine[0])
+        for s, e, n in mine[1:]:
+            if s < current[1]:
+                notes.append(f"'{name}' line {n} overlaps line {current[2]}")
+                current[1] = max(current[1], e)
+            else:
+                merged.append((current[0], current[1], name))
+                current = [s, e, n]
+        merged.append((current[0], current[1], name))
+    if notes:
+        warnings.warn(
+            f"{os.fspath(path)}: merged {len(notes)} overlapping segment(s) of the same speaker: "
+            + "; ".join(notes),
+            stacklevel=3,
+        )
+    merged.sort()
+    return SpeechSegments(
+        np.array([m[0] for m in merged], dtype=np.float64),
+        np.array([m[1] for m in merged], dtype=np.float64),
+        tuple(m[2] for m in merged),
+    )
+
+
+def read_rttm(path, *, file_id: Optional[str] = None) -> SpeechSegments:
+    """Read speech segments from an RTTM file (NIST Rich Transcription Time Marked).
+
+    Each ``SPEAKER <file> <channel> <onset> <duration> <NA> <NA> <speaker> <NA> <NA>``
+    line (whitespace-separated, seconds) gives the segment
+    ``[onset, onset + duration)`` (rounded to 1 ns). Other line types
+    (``SPKR-INFO``, ``LEXEME``, ...) and ``;;`` comments are ignored. Segments of
+    every file id are kept unless ``file_id`` selects one. Overlapping segments of
+    one speaker are merged, with a warning.
+
+    Raises :class:`SpeechFileError` (``path, line N:``) for an empty file, a
+    SPEAKER line with fewer than 8 fields, a non-numeric or non-finite onset or
+    duration, a negative duration, no SPEAKER lines, or no lines for ``file_id``.
+    """
+    lines = _read_lines(path, SpeechFileError)
+    if not any(ln.strip() for ln in lines):
+        raise SpeechFileError(
+            "empty file: expected RTTM lines "
+            "'SPEAKER <file> <channel> <onset> <duration> <NA> <NA> <speaker> <NA> <NA>'",
+            path,
+            1,
+        )
+    starts, ends, names, where, files = [], [], [], [], []
+    for number, raw in enumerate(lines, start=1):
+        fields = raw.split()
+        if not fields or fields[0].startswith(";;") or fields[0] != "SPEAKER":
+            continue
+        if len(fields) < 8:
+            raise SpeechFileError(
+                "SPEAKER line needs at least 8 fields "
+                f"'SPEAKER <file> <channel> <onset> <duration> <NA> <NA> <speaker>', got {len(fields)}",
+                path,
+                number,
+            )
+        files.append(fields[1])
+        if file_id is not None and fields[1] != file_id:
+            continue
+        onset = _number(fields[3], "onset", path, number, SpeechFileError)
+        duration = _number(fields[4], "duration", path, number, SpeechFileError)
+        if duration < 0:
+            raise SpeechFileError(f"negative duration {fields[4]}", path, number)
+        starts.append(onset)
+        ends.append(round(onset + duration, TIME_DECIMALS))
+        names.append(fields[7])
+        where.append(number)
+    if not files:
+        raise SpeechFileError("no SPEAKER lines", path)
+    if not starts:
+        raise SpeechFileError(
+            f"no SPEAKER lines for file '{file_id}' (files present: {', '.join(sorted(set(files)))})", path
+        )
+    return _segments(path, starts, ends, names, where)
+
+
+def read_segments_csv(path) -> SpeechSegments:
+    """Read speech segments from a CSV file with a header row.
+
+    Columns ``start, end, speaker`` (any order, case-insensitive; other columns
+    ignored; blank lines and lines starting with ``#`` skipped): the segment
+    ``[start, end)`` in seconds of ``speaker``. Overlapping segments of one speaker
+    are merged, with a warning.
+
+    Raises :class:`SpeechFileError` (``path, line N:``) for an empty file, a
+    missing column, no data rows, a row with the wrong number of fields, a
+    non-numeric or non-finite time, ``end < start`` or an empty speaker name.
+    """
+    required = ("start", "end", "speaker")
+    lines = _read_lines(path, SpeechFileError)
+    content = [(n + 1, ln) for n, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")]
+    if not content:
+        raise SpeechFileError("empty file: expected a header row with columns start, end, speaker", path, 1)
+    rows = []
+    for number, text in content:
+        try:
+            rows.append((number, next(csv.reader([text], strict=True))))
+        except csv.Error as exc:
+            raise SpeechFileError(f"malformed CSV: {exc}", path, number) from None
+    header_line, header = rows[0]
+    names = [cell.strip().lower() for cell in header]
+    problem = header_problem(names, required, hint="need start, end, speaker", watched=required)
+    if problem:
+        raise SpeechFileError(problem, path, header_line)
+    if len(rows) == 1:
+        raise SpeechFileError("no data rows after the header", path, header_line)
+    i_start, i_end, i_speaker = (names.index(c) for c in required)
+    starts, ends, speakers, where = [], [], [], []
+    for number, row in rows[1:]:
+        if len(row) != len(header):
+            raise SpeechFileError(f"expected {len(header)} fields as in the header, got {len(row)}", path, number)
+        start = _number(row[i_start].strip(), "column 'start'", path, number, SpeechFileError)
+        end = _number(row[i_end].strip(), "column 'end'", path, number, SpeechFileError)
+        speaker = row[i_speaker].strip()
+        if end < start:
+            raise SpeechFileError(f"end {row[i_end].strip()} is before start {row[i_start].strip()}", path, number)
+        if not speaker:
+            raise SpeechFileError("empty speaker name", path, number)
+        starts.append(start)
+        ends.append(end)
+        speakers.append(speaker)
+        where.append(number)
+    return _segments(path, starts, ends, speakers, where)
+

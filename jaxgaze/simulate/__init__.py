@@ -1,0 +1,86 @@
+"""Every simulator of jaxgaze, with ground truth: scenes for the social saliency field,
+calibration sessions, dyadic conversations, table-top sessions, faces, rendered
+scenes and videos. Models never import this package.
+"""
+
+from jaxgaze.simulate.scenes import (
+    PRESETS,
+    Scene,
+    SceneConfig,
+    scene_config,
+    simulate_scene,
+    primary_rays,
+)
+from jaxgaze.simulate.calibration import (
+    Mounting,
+    CalibrationSession,
+    random_mounting,
+    simulate_calibration_session,
+    simulate_wearers,
+)
+from jaxgaze.simulate.dyadic import (
+    DyadicConfig,
+    DyadicRecording,
+    dyadic_config,
+    simulate_dyadic,
+    simulate_dyadic_sessions,
+)
+from jaxgaze.simulate.tabletop import (
+    TabletopConfig,
+    PersonTraits,
+    TabletopSession,
+    tabletop_config,
+    head_pose_features,
+    project_optical_to_image,
+    simulate_tabletop_sessions,
+)
+from jaxgaze.simulate.faces import (
+    SimulatedFaces,
+    rotation_frontal_from_head,
+    simulate_faces,
+)
+from jaxgaze.simulate.render import (
+    CONDITIONS,
+    RenderedScene,
+    composite,
+    render_tabletop_scene,
+)
+from jaxgaze.simulate.video import (
+    VideoTruth,
+    render_tabletop_video,
+)
+
+__all__ = [
+    "PRESETS",
+    "Scene",
+    "SceneConfig",
+    "scene_config",
+    "simulate_scene",
+    "primary_rays",
+    "Mounting",
+    "CalibrationSession",
+    "random_mounting",
+    "simulate_calibration_session",
+    "simulate_wearers",
+    "DyadicConfig",
+    "DyadicRecording",
+    "dyadic_config",
+    "simulate_dyadic",
+    "simulate_dyadic_sessions",
+    "TabletopConfig",
+    "PersonTraits",
+    "TabletopSession",
+    "tabletop_config",
+    "head_pose_features",
+    "project_optical_to_image",
+    "simulate_tabletop_sessions",
+    "SimulatedFaces",
+    "rotation_frontal_from_head",
+    "simulate_faces",
+    "CONDITIONS",
+    "RenderedScene",
+    "composite",
+    "render_tabletop_scene",
+    "VideoTruth",
+    "render_tabletop_video",
+]
