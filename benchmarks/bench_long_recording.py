@@ -19,7 +19,7 @@ import argparse
 import os
 import sys
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests", "concurrence"))
 from deadlock_tools import run_until_stalled  # noqa: E402
 
 CHILD = r"""

@@ -5,7 +5,7 @@ over its thread pool (the deadlock's precondition). It runs Python code in a fre
 optimised HLO module it compiled, and applies jaxlib's own rule
 (``GetLapackBatchChunkSize`` in jaxlib 0.10–0.11): a call of ``B`` matrices of
 ``c`` flops each is split when ``B > ⌈200 000 / c⌉``. The flop formulas are
-jaxlib's, per LAPACK routine. ``python tests/deadlock_tools.py -c CODE`` prints the calls.
+jaxlib's, per LAPACK routine. ``python tests/concurrence/deadlock_tools.py -c CODE`` prints the calls.
 :func:`run_until_stalled` runs code in a child process and kills it when it stops printing.
 """
 

@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 import pytest
-from cli_helpers import assert_failed, run_main
+from tests.cli.helpers import assert_failed, run_main
 
 import jaxgaze.rays
 from jaxgaze.cli import CSV_COLUMNS, OUTPUT_COLUMNS, main

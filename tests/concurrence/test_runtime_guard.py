@@ -16,7 +16,7 @@ import textwrap
 
 import pytest
 
-from deadlock_tools import audit, run_until_stalled
+from tests.concurrence.deadlock_tools import audit, run_until_stalled
 
 pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="the audit and the stress test use Linux processes")
 

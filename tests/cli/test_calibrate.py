@@ -15,7 +15,7 @@ import os
 import jax
 import numpy as np
 import pytest
-from cli_helpers import assert_failed, run_main
+from tests.cli.helpers import assert_failed, run_main
 
 from jaxgaze.cli import CAMERA_POSE_COLUMNS, CSV_COLUMNS, OUTPUT_COLUMNS, main
 from jaxgaze.geometry import rotation_matrix_to_quaternion
@@ -23,7 +23,7 @@ from jaxgaze.io.poses import write_colmap_images, write_pose_csv
 from jaxgaze.poses import CameraPoses
 from jaxgaze.simulate.calibration import simulate_calibration_session
 
-DATA = os.path.join(os.path.dirname(__file__), "data")
+DATA = os.path.join(os.path.dirname(os.path.dirname(__file__)), "data")
 POSE_HEADER = "frame,qw,qx,qy,qz,cx,cy,cz\n"
 
 

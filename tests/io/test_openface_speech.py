@@ -18,7 +18,7 @@ from jaxgaze.io.speech import SpeechFileError, read_rttm, read_segments_csv
 from jaxgaze.geometry import axis_angle_to_rotation_matrix, yaw_pitch_to_direction
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).parent.parent / "data"
 OPENFACE = DATA / "openface_sample.csv"
 RTTM = DATA / "speech_segments.rttm"
 SEGMENTS_CSV = DATA / "speech_segments.csv"

@@ -22,7 +22,7 @@ import sys
 import jax
 import numpy as np
 import pytest
-from cli_helpers import assert_failed, run_main
+from tests.cli.helpers import assert_failed, run_main
 from scipy.spatial.transform import Rotation
 
 from jaxgaze.io.openface import R_OPENFACE_MODEL_FROM_HEAD

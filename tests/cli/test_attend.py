@@ -8,7 +8,7 @@ import cv2
 import jax
 import numpy as np
 import pytest
-from cli_helpers import assert_failed, run_main
+from tests.cli.helpers import assert_failed, run_main
 
 from jaxgaze.cli import ATTEND_COLUMNS, main
 from jaxgaze.io.models import load_gaze_regression
