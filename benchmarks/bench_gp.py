@@ -107,6 +107,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxgaze.gp as gp  # noqa: E402
+from jaxgaze.results import name as result_name  # noqa: E402
 
 
 def pose_to_gaze_data(n: int, seed: int = 0, noise: float = 0.05):
@@ -205,7 +206,7 @@ def compare(n: int, args, setting: str) -> dict:
         ours_t.append(t)
         fits.append(fitted)
         print(f"  n={n} {setting} key {args.seed + k}: ours {t:.2f} s, stages {fitted.stages}, "
-              f"{fitted.result.name}, LML {exact_lml(fitted.kernel):.6f}", flush=True)
+              f"{result_name(fitted.result)}, LML {exact_lml(fitted.kernel):.6f}", flush=True)
     lmls = [exact_lml(f.kernel) for f in fits]
     worst = fits[int(np.argmin(lmls))]
     row = {
@@ -215,7 +216,7 @@ def compare(n: int, args, setting: str) -> dict:
         "ours_range": (min(ours_t), max(ours_t)),
         "compile": max(first - min(ours_t), 0.0),
         "float64_steps": [f.stages[-1][2] for f in fits],
-        "results": sorted({f.result.name for f in fits}),
+        "results": sorted({result_name(f.result) for f in fits}),
         "lml_ours": min(lmls),
         "lml_ours_range": (min(lmls), max(lmls)),
         "ours_kernel": {k: float(v) for k, v in worst.kernel.hyperparameters().items()},
@@ -251,7 +252,7 @@ def gpu_run(n: int, args) -> dict:
         "ours": min(times),
         "compile": max(first - min(times), 0.0),
         "stages": fitted.stages,
-        "result": fitted.result.name,
+        "result": result_name(fitted.result),
         "lml_ours_reported": float(fitted.log_marginal_likelihood),
         "dtype": str(Xj.dtype),
         "ours_kernel": {k: float(v) for k, v in fitted.kernel.hyperparameters().items()},

@@ -143,7 +143,7 @@ def _jax_runner(iterations: int, max_stretch: int = 1):
 
 def _xla_runner(iterations: int, max_stretch: int = 1):
     """The unfused XLA loop (what ``meanshift`` runs on CPU), for comparison with the fused GPU kernel."""
-    from jaxgaze.concurrence import _xla_meanshift, ray_projector
+    from jaxgaze.concurrence.modes import _xla_meanshift, ray_projector
 
     return jax.jit(lambda rays, seeds: _xla_meanshift(ray_projector(rays), seeds, 0.0, iterations, max_stretch))
 
@@ -170,7 +170,7 @@ def tune_fused(rays, seeds, iterations: int, max_stretch: int, shapes: str) -> N
 
 
 def tune_one(shape: str, size: tuple[int, int], iterations: int, max_stretch: int) -> None:
-    from jaxgaze.concurrence import ray_projector
+    from jaxgaze.concurrence.modes import ray_projector
     from jaxgaze.concurrence.meanshift_pallas import fused_meanshift
 
     block_seeds, block_rays, warps = (int(v) for v in shape.split("x")[:3])

@@ -37,13 +37,13 @@ from jaxgaze import concurrence
 
 path, frames, calls, full, benchmarks = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1", sys.argv[5]
 scene = simulate_scene(jax.random.key(4), "meeting", num_frames=frames)
-options = {} if full else dict(seed_depths=(1.0, 3.0), max_iter=60, refine_steps=16)
+options = concurrence.ConcurrenceOptions() if full else concurrence.ConcurrenceOptions(seed_depths=(1.0, 3.0), max_iter=60, refine_steps=16)
 if path == "old":
     sys.path.insert(0, benchmarks)
     from old_path import compile_old_path
-    run = compile_old_path(scene.rays, **options)
+    run = compile_old_path(scene.rays, options)
 else:
-    run = lambda: concurrence.find_concurrences_over_frames(scene.rays, **options)
+    run = lambda: concurrence.find_concurrences_over_frames(scene.rays, options)
 print("ready", flush=True)
 for call in range(calls):
     start = time.perf_counter()

@@ -4,13 +4,12 @@ Kept for ``hang_repro.py`` and ``bench_long_recording.py`` only. On XLA:CPU its 
 LAPACK calls are large enough to deadlock (docs/runtime.md).
 """
 
-from jaxgaze import concurrence
+from jaxgaze.concurrence import ConcurrenceOptions, modes
 
 
-def compile_old_path(rays, seed_depths=concurrence.DEFAULT_SEED_DEPTHS, max_iter=500, refine_steps=64):
-    """``run()`` of the compiled single-vmap program over ``rays`` (default options otherwise)."""
-    depths, box, static = concurrence._options(rays, seed_depths, None, 2, 3.0, 2.0, 0.9, 0.3, 1e-4, max_iter, None,
-                                               100.0, refine_steps)
+def compile_old_path(rays, options=ConcurrenceOptions()):
+    """``run()`` of the compiled single-vmap program over ``rays`` with ``options``."""
+    depths, box, static = modes._prepare(rays, options)
     static["modes_per_batch"] = static["max_modes"]  # every mode in one batch, as before
-    program = concurrence._over_frames_jit.lower(rays, depths, box, **static).compile()
+    program = modes._over_frames_jit.lower(rays, depths, box, **static).compile()
     return lambda: program(rays, depths, box)

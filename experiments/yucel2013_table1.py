@@ -32,7 +32,7 @@ import time
 import jax
 
 from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
-from jaxgaze.vision.attend import evaluate_attention, format_attention_table
+from jaxgaze.papers.yucel2013_attention import evaluate_attention, format_attention_table
 
 PAPER_TABLE_I = """paper, T-CYB Table I (Q1 / Q2), real videos, 4 people x 2 sessions:
 | method | split | Regr. | Regr.+Itti | Regr.+Judd | Regr.+Bruce |

@@ -25,7 +25,7 @@ import time
 import jax
 
 from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
-from jaxgaze.vision.attend import evaluate_attention, format_attention_table
+from jaxgaze.papers.yucel2013_attention import evaluate_attention, format_attention_table
 from jaxgaze.simulate.render import CONDITIONS
 
 PAPER_TABLE_II = """paper, T-CYB Table II (Q1 / Q2), GPR, cross-referencing, recording set 2 (trained in natural light):

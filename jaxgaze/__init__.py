@@ -27,8 +27,9 @@ frames, metres, radians inside (degrees only in names ending ``_deg``).
 
 import importlib
 
-from jaxgaze import bias, calibration, concurrence, cone, geometry, gp, headpose, poses, rays
+from jaxgaze import bias, calibration, concurrence, cone, geometry, gp, headpose, poses, rays, results
 from jaxgaze.rays import GazeRays
+from jaxgaze.results import RESULTS, FitError
 from jaxgaze.cone import (
     cone_log_density,
     max_intensity_projection,
@@ -40,7 +41,6 @@ from jaxgaze.cone import (
 )
 from jaxgaze.calibration import (
     CalibrationPosterior,
-    CalibrationResult,
     ConeCalibration,
     calibrate_cone,
     calibrate_cone_posterior,
@@ -48,6 +48,7 @@ from jaxgaze.calibration import (
 )
 from jaxgaze.concurrence import (
     ConcurrenceEnsemble,
+    ConcurrenceOptions,
     Concurrences,
     MeanShiftResult,
     Tracks,
@@ -94,11 +95,14 @@ __all__ = [
     "saliency_field",
     "saliency_field_grid",
     "max_intensity_projection",
+    # result codes of every fit
+    "results",
+    "RESULTS",
+    "FitError",
     # calibration
     "calibration",
     "calibrate_cone",
     "ConeCalibration",
-    "CalibrationResult",
     "calibrate_cone_posterior",
     "calibrate_cone_posterior_batch",
     "CalibrationPosterior",
@@ -108,6 +112,7 @@ __all__ = [
     "MeanShiftResult",
     "find_concurrences",
     "find_concurrences_over_frames",
+    "ConcurrenceOptions",
     "Concurrences",
     "track_concurrences",
     "Tracks",

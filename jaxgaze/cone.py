@@ -31,7 +31,7 @@ __all__ = [
 _LOG_2PI = math.log(2.0 * math.pi)
 
 
-def cone_log_density(rays: GazeRays, point: Float[Array, "3"]) -> Float[Array, "N"]:
+def cone_log_density(rays: GazeRays, point: Float[Array, "3"]) -> Float[Array, " N"]:
     """Log density of a point of regard under each ray's cone, ``(N,)`` for one point.
 
     Given the depth ``t = vᵀ(x − p)`` the offset ``x − x̂`` on the cross-section is
@@ -69,7 +69,7 @@ def sample_points_of_regard(key: PRNGKeyArray, rays: GazeRays, depth: Float[Arra
     return rays.origins + t * (rays.directions + h * (offsets[..., :1] * u1 + offsets[..., 1:] * u2))
 
 
-def ray_kernels(rays: GazeRays, point: Float[Array, "3"]) -> Float[Array, "N"]:
+def ray_kernels(rays: GazeRays, point: Float[Array, "3"]) -> Float[Array, " N"]:
     """Per-ray kernel ``K_i(x) = exp(−‖d_i‖² / 2h_i²) / (h_i √(2π))`` of eq. 3 (0 behind the eye)."""
     d, in_front = jax.vmap(perspective_distance, in_axes=(0, 0, None))(rays.origins, rays.directions, point)
     h = rays.bandwidth
@@ -94,7 +94,7 @@ def saliency_field(rays: GazeRays, points: Float[Array, "... 3"]) -> Float[Array
 
 
 @jax.jit
-def _field_at(rays: GazeRays, points: Float[Array, "P 3"]) -> Float[Array, "P"]:
+def _field_at(rays: GazeRays, points: Float[Array, "P 3"]) -> Float[Array, " P"]:
     n = jnp.maximum(jnp.sum(rays.mask), 1)
     return jax.vmap(lambda x: jnp.sum(ray_kernels(rays, x)))(points) / n
 

@@ -31,6 +31,9 @@ __all__ = [
     "quaternion_to_rotation_matrix",
     "rotation_matrix_to_quaternion",
     "axis_angle_to_rotation_matrix",
+    "head_pose_to_rotation",
+    "rotation_to_head_pose",
+    "wrap_angle",
     "orthonormal_basis",
     "ray_depth",
     "perspective_distance",
@@ -168,32 +171,47 @@ def axis_angle_to_rotation_matrix(rotation_vector: Float[Array, "... 3"]) -> Flo
     return quaternion_to_rotation_matrix(q)
 
 
-def head_pose_to_rotation(pose: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
-    """``R_frontal_from_head = R_z(yaw) R_y(−pitch) R_x(roll)`` for ``pose = (..., 3)`` =
-    ``(pitch, yaw, roll)`` (radians), head frame axes as in ``docs/conventions.md``.
+def head_pose_to_rotation(yaw, pitch, roll) -> Float[Array, "... 3 3"]:
+    """``R_frontal_from_head = R_z(yaw) R_y(−pitch) R_x(roll)`` (radians; broadcasts to ``(..., 3, 3)``).
 
-    Yaw > 0 turns the face to the person's left, pitch > 0 up, roll > 0 raises the left
-    ear. The frontal frame is the head's pose at rest (facing the camera for the head
-    tracker and the facial-feature cascade).
+    Head frame axes as in ``docs/conventions.md`` (+x forward, +y left, +z up). Yaw > 0
+    turns the face to the person's left, pitch > 0 up, roll > 0 raises the left ear. The
+    *frontal* frame is the head's pose at rest; a camera-specific frame is one fixed
+    rotation more, e.g. ``R_optical_from_head = R_optical_from_frontal @ R_frontal_from_head``.
     """
-    pose = jnp.asarray(pose)
-    zeros = jnp.zeros_like(pose[..., 0])
+    yaw, pitch, roll = jnp.broadcast_arrays(jnp.asarray(yaw), jnp.asarray(pitch), jnp.asarray(roll))
+    zeros = jnp.zeros_like(yaw)
 
     def about(axis, angle):
         v = [zeros, zeros, zeros]
         v[axis] = angle
         return axis_angle_to_rotation_matrix(jnp.stack(v, axis=-1))
 
-    return about(2, pose[..., 1]) @ about(1, -pose[..., 0]) @ about(0, pose[..., 2])
+    return about(2, yaw) @ about(1, -pitch) @ about(0, roll)
 
 
-def rotation_to_head_pose(R: Float[Array, "... 3 3"]) -> Float[Array, "... 3"]:
-    """Inverse of :func:`head_pose_to_rotation`: ``(..., 3)`` (pitch, yaw, roll); pitch in [−π/2, π/2]."""
+def rotation_to_head_pose(R: Float[Array, "... 3 3"]) -> tuple[Array, Array, Array]:
+    """Inverse of :func:`head_pose_to_rotation`: ``(yaw, pitch, roll)``, pitch in [−π/2, π/2].
+
+    ``(yaw, pitch) = direction_to_yaw_pitch(R e_x)`` (the forward axis) and
+    ``roll = atan2(R₂₁, R₂₂)``.
+    """
     R = jnp.asarray(R)
-    pitch = jnp.arcsin(jnp.clip(R[..., 2, 0], -1.0, 1.0))
-    yaw = jnp.arctan2(R[..., 1, 0], R[..., 0, 0])
+    yaw, pitch = direction_to_yaw_pitch(R[..., :, 0])
     roll = jnp.arctan2(R[..., 2, 1], R[..., 2, 2])
-    return jnp.stack([pitch, yaw, roll], axis=-1)
+    return yaw, pitch, roll
+
+
+def wrap_angle(angle):
+    """Angle wrapped to (−π, π]: ``a − 2π ⌈(a − π) / 2π⌉``.
+
+    Exact (``a`` itself) for ``a`` in (−π, π], and π in the input's precision maps to
+    +π. The gradient is 1. NumPy arrays and scalars are wrapped in NumPy at their own
+    precision (and stay NumPy); anything else (Python numbers, JAX arrays, tracers) in JAX.
+    """
+    xp = np if isinstance(angle, (np.ndarray, np.generic)) else jnp
+    angle = xp.asarray(angle)
+    return angle - 2 * np.pi * xp.ceil((angle - np.pi) / (2 * np.pi))
 
 
 def orthonormal_basis(v: Float[Array, "3"]) -> tuple[Array, Array]:

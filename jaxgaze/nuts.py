@@ -26,7 +26,7 @@ import numpy as np
 from numpyro.infer.hmc import hmc
 from numpyro.infer.util import constrain_fn, potential_energy
 
-__all__ = ["sample_nuts", "quiet_single_chain", "padded_length"]
+__all__ = ["sample_nuts", "quiet_single_chain"]
 
 #: The progress bar advances every this many iterations.
 REPORT_EVERY = 25
@@ -84,8 +84,8 @@ def sample_nuts(
 
     The ``B`` chains run one after the other through one compiled single-chain
     program. (A ``vmap`` over chains batches NUTS's tree-building while-loops: every
-    chain waits for the deepest tree of the batch at every iteration. On CPU that
-    was about 100× slower for 50 calibration posteriors, and it compiles far slower.)
+    chain waits for the deepest tree of the batch at every iteration, and it
+    compiles far slower.)
 
     Args:
         model: a numpyro model ``model(*args)``; it must be hashable and the same
@@ -127,11 +127,6 @@ def sample_nuts(
         finally:
             _progress = None
     return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *runs)
-
-
-def padded_length(n: int, multiple: int = 64) -> int:
-    """``n`` rounded up to a multiple of ``multiple``: datasets of similar size share one compilation."""
-    return max(multiple, -(-int(n) // multiple) * multiple)
 
 
 @contextlib.contextmanager

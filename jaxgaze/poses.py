@@ -25,6 +25,7 @@ from typing import NamedTuple, Optional
 import jax
 import numpy as np
 
+from jaxgaze._checks import bucket_size
 from jaxgaze.geometry import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
 __all__ = [
@@ -121,10 +122,6 @@ _quat_to_matrix_jit = jax.jit(quaternion_to_rotation_matrix)
 _matrix_to_quat_jit = jax.jit(jax.vmap(rotation_matrix_to_quaternion))
 
 
-def _padded_size(n: int) -> int:
-    return max(16, 1 << (n - 1).bit_length())
-
-
 def quaternions_to_matrices(q: np.ndarray) -> np.ndarray:
     """``(T, 4)`` unit quaternions (w, x, y, z) → ``(T, 3, 3)`` float64 rotation matrices.
 
@@ -132,7 +129,7 @@ def quaternions_to_matrices(q: np.ndarray) -> np.ndarray:
     per padded length (powers of two) rather than once per file length.
     """
     n = q.shape[0]
-    padded = np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (_padded_size(n), 1))
+    padded = np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (bucket_size(n), 1))
     padded[:n] = q
     with jax.enable_x64(True):
         return np.asarray(_quat_to_matrix_jit(padded), dtype=np.float64)[:n]
@@ -141,7 +138,7 @@ def quaternions_to_matrices(q: np.ndarray) -> np.ndarray:
 def matrices_to_quaternions(R: np.ndarray) -> np.ndarray:
     """``(T, 3, 3)`` rotation matrices → ``(T, 4)`` quaternions (w, x, y, z) with ``w ≥ 0``, float64."""
     n = R.shape[0]
-    padded = np.tile(np.eye(3), (_padded_size(n), 1, 1))
+    padded = np.tile(np.eye(3), (bucket_size(n), 1, 1))
     padded[:n] = R
     with jax.enable_x64(True):
         return np.asarray(_matrix_to_quat_jit(padded), dtype=np.float64)[:n]

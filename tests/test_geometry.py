@@ -455,13 +455,22 @@ def test_yaw_pitch_of_a_pole_with_subnormal_components_is_finite():
 def test_head_pose_rotation_signs_and_round_trip(x64):
     # Yaw turns the forward axis (+x) towards the person's left (+y); pitch raises it (+z);
     # roll raises the left ear: the left axis (+y) gains +z.
-    R = g.head_pose_to_rotation(jnp.array([0.0, 0.3, 0.0]))
+    R = g.head_pose_to_rotation(yaw=0.3, pitch=0.0, roll=0.0)
     np.testing.assert_allclose(R[:, 0], [np.cos(0.3), np.sin(0.3), 0.0], atol=1e-12)
-    R = g.head_pose_to_rotation(jnp.array([0.2, 0.0, 0.0]))
+    R = g.head_pose_to_rotation(yaw=0.0, pitch=0.2, roll=0.0)
     np.testing.assert_allclose(R[:, 0], [np.cos(0.2), 0.0, np.sin(0.2)], atol=1e-12)
-    R = g.head_pose_to_rotation(jnp.array([0.0, 0.0, 0.1]))
+    R = g.head_pose_to_rotation(yaw=0.0, pitch=0.0, roll=0.1)
     np.testing.assert_allclose(R[:, 1], [0.0, np.cos(0.1), np.sin(0.1)], atol=1e-12)
     poses = jax.random.uniform(jax.random.key(3), (50, 3), minval=-1.2, maxval=1.2)
-    Rs = g.head_pose_to_rotation(poses)
+    Rs = g.head_pose_to_rotation(*poses.T)  # columns (yaw, pitch, roll)
     np.testing.assert_allclose(np.einsum("nij,nkj->nik", Rs, Rs), np.broadcast_to(np.eye(3), (50, 3, 3)), atol=1e-12)
-    np.testing.assert_allclose(g.rotation_to_head_pose(Rs), poses, atol=1e-10)
+    np.testing.assert_allclose(jnp.stack(g.rotation_to_head_pose(Rs), axis=-1), poses, atol=1e-10)
+
+
+def test_wrap_angle_numpy_keeps_float64_and_jax_matches():
+    x = np.array([0.0, np.pi, -np.pi, 3 * np.pi / 2, 2 * np.pi + 1e-9, -6.0, 1e-12])
+    w = g.wrap_angle(x)
+    assert isinstance(w, np.ndarray) and w.dtype == np.float64
+    np.testing.assert_allclose(w, [0.0, np.pi, np.pi, -np.pi / 2, 1e-9, 2 * np.pi - 6.0, 1e-12], atol=1e-15)
+    assert np.all((w > -np.pi) & (w <= np.pi))
+    np.testing.assert_allclose(np.asarray(g.wrap_angle(jnp.asarray(x[3:6], jnp.float32))), w[3:6], atol=1e-6)

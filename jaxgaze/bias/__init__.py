@@ -5,6 +5,19 @@
 * :mod:`jaxgaze.bias.estimators`: the bias from the offsets — mean, LMedS (eq. 2) and
   a Bayesian mixture (numpyro NUTS).
 * :mod:`jaxgaze.bias.speech`: speech segments and per-frame speaking flags.
+
+Where each equation and section lives:
+
+| equation or section | function | file |
+|---|---|---|
+| Sec. 2–3: gaze angles ``Φ``, target direction ``u_t`` in the head frame | ``gaze_angles_to_direction``, ``direction_to_gaze_angles``, ``target_direction_head`` | ``bias/looking.py`` |
+| eq. 1: looking at the target, ``∠(Φ(g + b), u_t) < τ`` | ``angular_error``, ``is_looking_at``, ``looking_probability`` | ``bias/looking.py`` |
+| Sec. 3: who speaks when | ``speaking_flags``, ``speaking_at`` | ``bias/speech.py`` |
+| Sec. 3.2: Spk frame selection | ``candidate_frames``, ``select_frames`` | ``bias/looking.py`` |
+| Sec. 3.2: offsets ``o_i`` of the selected frames | ``gaze_offsets`` | ``bias/looking.py`` |
+| eq. 2: LMedS bias | ``lmeds_bias``, ``estimate_bias(..., "lmeds")`` | ``bias/estimators.py`` |
+| Sec. 5, Fig. 7: Bayesian mixture bias (NUTS) | ``bias_model``, ``sample_bias_posterior``, ``estimate_bias(..., "bayes")`` | ``bias/estimators.py`` |
+| Sec. 3–4: the whole adaptation, arrays in, report out | ``adapt_bias`` | ``bias/adapt.py`` |
 """
 
 from jaxgaze.bias.estimators import (
@@ -30,7 +43,13 @@ from jaxgaze.bias.looking import (
     looking_probability,
     select_frames,
     target_direction_head,
-    wrap_angle,
+)
+from jaxgaze.bias.adapt import (
+    BIAS_FRAME_COLUMNS,
+    DEFAULT_NUM_FRAMES,
+    BiasAdaptation,
+    BiasInputError,
+    adapt_bias,
 )
 
 __all__ = [
@@ -56,5 +75,9 @@ __all__ = [
     "looking_probability",
     "select_frames",
     "target_direction_head",
-    "wrap_angle",
+    "BIAS_FRAME_COLUMNS",
+    "DEFAULT_NUM_FRAMES",
+    "BiasAdaptation",
+    "BiasInputError",
+    "adapt_bias",
 ]

@@ -24,12 +24,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from jaxgaze.geometry import angle_between, deg_to_rad, direction_to_yaw_pitch, unit, yaw_pitch_to_direction
+from jaxgaze.geometry import angle_between, deg_to_rad, direction_to_yaw_pitch, unit, wrap_angle, yaw_pitch_to_direction
 
 __all__ = [
     "gaze_angles_to_direction",
     "direction_to_gaze_angles",
-    "wrap_angle",
     "head_to_world",
     "target_direction_head",
     "gaze_offsets",
@@ -125,12 +124,6 @@ def direction_to_gaze_angles(direction: Float[Array, "... 3"]) -> Float[Array, "
     direction = _last_axis("direction", direction, 3)
     yaw, tilt = direction_to_yaw_pitch(direction)
     return jnp.stack([yaw, tilt], axis=-1)
-
-
-def wrap_angle(angle: Float[Array, "..."]) -> Float[Array, "..."]:
-    """Wrap an angle to (−π, π]: ``π − ((π − a) mod 2π)``."""
-    angle = jnp.asarray(angle)
-    return jnp.pi - jnp.mod(jnp.pi - angle, 2 * jnp.pi)
 
 
 def head_to_world(

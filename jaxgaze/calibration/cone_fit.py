@@ -37,30 +37,26 @@ pulls it onto ``p0``. The paper leaves λ free ("controls how far the apex is
 from p0"). At the optimum λ equals ``a_k/(b_k+α)² = ξ/t_k``, the cone's
 half-angle tangent over the depth of the active point ``k`` from the apex; with
 ξ ≈ 3h ≈ 0.1 and the active point about 2 m away that is ≈ 0.05 per metre, the
-default. In simulation (h = 0.02–0.05, 60 points at 1–4 m) λ = 0.05 put the apex
-with a median along-axis error of ≈ 0 (median absolute error ≈ 13 cm); λ = 0.02
-put it ≈ 1 m too far back and λ = 0.2 ≈ 0.5 m too far forward. The line, and so
+default (how λ moves the apex in simulation: ``benchmarks/RESULTS.md``). The line, and so
 the eye centre *perpendicular* to the gaze axis, does not depend on λ; the
 position along the axis does.
 """
 
 from __future__ import annotations
 
-import enum
 import math
 from typing import NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
 from jaxgaze.geometry import perspective_distance, unit
 from jaxgaze.rays import GazeRays
+from jaxgaze.results import RESULTS, code, throw_if_failed
 
 __all__ = [
-    "CalibrationResult",
     "ConeCalibration",
     "calibrate_cone",
     "solve_cone_apex",
@@ -81,47 +77,6 @@ _BISECTION_STEPS = 80
 _MIN_POINTS = 3
 
 
-class CalibrationResult(enum.IntEnum):
-    """Outcome codes stored in :attr:`ConeCalibration.result` (like ``optimistix.RESULTS``)."""
-
-    successful = 0
-    #: fewer than ``max(3, ceil(min_inlier_fraction · M))`` RANSAC inliers.
-    too_few_inliers = 1
-    #: the inliers do not define a cone: they coincide, or lie exactly on one line
-    #: (no eye-in-head spread, so h = 0).
-    degenerate = 2
-    #: most points have x ≤ 0 in the camera frame, i.e. they are behind the camera.
-    behind_camera = 3
-    #: NaN or inf in the points (only reported under jit/vmap; concrete input raises).
-    nonfinite_input = 4
-    #: the fitted line passes through the camera centre (its distance to the origin
-    #: is ~0 relative to the inliers' extent), so the apex is undefined. A degenerate case.
-    collinear_through_camera = 5
-
-
-_MESSAGES = {
-    CalibrationResult.successful: "calibration succeeded",
-    CalibrationResult.too_few_inliers: (
-        "calibrate_cone: too few RANSAC inliers to fit the gaze line; check the points of regard "
-        "or raise inlier_threshold"
-    ),
-    CalibrationResult.degenerate: (
-        "calibrate_cone: degenerate points of regard: they coincide or lie exactly on one line (no "
-        "eye-in-head spread, so h = 0 and the apex is undefined)"
-    ),
-    CalibrationResult.collinear_through_camera: (
-        "calibrate_cone: degenerate points of regard: the points are collinear through the camera "
-        "centre (the fitted line passes through the origin), so the apex (centre of the eyes) is undefined"
-    ),
-    CalibrationResult.behind_camera: (
-        "calibrate_cone: most points of regard are behind the camera (x ≤ 0 in the camera frame, "
-        "where +x is forward); pass points in the camera frame (+x forward, +y left, +z up), not "
-        "OpenCV's frame or the world frame"
-    ),
-    CalibrationResult.nonfinite_input: "calibrate_cone: points contain NaN or inf",
-}
-
-
 class ConeCalibration(NamedTuple):
     """Calibrated cone gaze model of one wearer, in the wearer's **camera** frame.
 
@@ -132,9 +87,11 @@ class ConeCalibration(NamedTuple):
         alpha: ``α``, distance of the apex behind ``p0`` along ``−v`` (m).
         xi: ``ξ = max_i a_i/(b_i+α)``, tangent of the cone's half-angle.
         inliers: ``(M,)`` RANSAC inlier mask.
-        result: int code, a :class:`CalibrationResult`.
+        result: a :class:`jaxgaze.results.RESULTS` item: ``successful``, ``too_few_inliers``,
+            ``degenerate``, ``collinear_through_camera``, ``behind_camera`` or ``nonfinite``
+            (NaN or inf in the points; only reported under jit/vmap, concrete input raises).
 
-    On failure (``result != 0``) the geometric fields hold NaN-free placeholders:
+    On failure (``result != RESULTS.successful``) the geometric fields hold NaN-free placeholders:
     eye centre 0, direction +x, bandwidth 1, α = ξ = 0 (the inlier mask is kept).
     Leading batch axes appear when ``calibrate_cone`` is vmapped.
     """
@@ -145,17 +102,17 @@ class ConeCalibration(NamedTuple):
     alpha: Float[Array, ""]
     xi: Float[Array, ""]
     inliers: Bool[Array, "M"]
-    result: Int[Array, ""]
+    result: RESULTS
 
     @property
     def succeeded(self) -> Array:
         """``result == successful`` (an array; per wearer when batched)."""
-        return jnp.asarray(self.result) == CalibrationResult.successful
+        return self.result == RESULTS.successful
 
     @property
     def message(self) -> str:
-        """Human-readable outcome (single, concrete calibration only)."""
-        return _MESSAGES[CalibrationResult(int(self.result))]
+        """Human-readable outcome (``RESULTS[result]``; concrete calibrations only)."""
+        return RESULTS[self.result]
 
     def to_gaze_rays(self, R_world_from_camera, camera_centers) -> GazeRays:
         """Primary gaze rays in the world frame, one per camera pose (item 4).
@@ -176,7 +133,7 @@ class ConeCalibration(NamedTuple):
 
         Raises:
             ValueError: on mismatched shapes, or if the calibration failed
-                (concrete ``result != 0``).
+                (concrete ``result != RESULTS.successful``).
         """
         R = jnp.asarray(R_world_from_camera)
         C = jnp.asarray(camera_centers)
@@ -187,9 +144,9 @@ class ConeCalibration(NamedTuple):
                 f"to_gaze_rays: camera_centers must have shape {R.shape[:-2] + (3,)} to match "
                 f"R_world_from_camera {R.shape}, got {C.shape}"
             )
-        if jnp.ndim(self.result) != 0:
+        if jnp.ndim(code(self.result)) != 0:
             raise ValueError("to_gaze_rays: needs a single calibration, not a batch; index it first")
-        if _is_concrete(self.result) and int(self.result) != CalibrationResult.successful:
+        if _is_concrete(code(self.result)) and not bool(self.succeeded):
             raise ValueError(f"to_gaze_rays: the calibration failed: {self.message}")
         origins = jnp.einsum("...ij,j->...i", R, self.eye_center) + C
         directions = jnp.einsum("...ij,j->...i", R, self.direction)
@@ -398,18 +355,18 @@ def _calibrate(points, key, iterations, threshold, lam, min_inlier_fraction, deg
 
     min_inliers = max(_MIN_POINTS, math.ceil(min_inlier_fraction * M))
     behind_camera = jnp.sum(pts[:, 0] <= 0) * 2 > M
-    result = jnp.select(
-        [~finite, behind_camera, n_in < min_inliers, through_origin, degenerate | ~(h > 0)],
-        [
-            CalibrationResult.nonfinite_input,
-            CalibrationResult.behind_camera,
-            CalibrationResult.too_few_inliers,
-            CalibrationResult.collinear_through_camera,
-            CalibrationResult.degenerate,
-        ],
-        CalibrationResult.successful,
-    ).astype(jnp.int32)
-    ok = result == CalibrationResult.successful
+    # The first failure that applies, in this order (RESULTS.where needs a scalar predicate:
+    # one wearer here, vmapped outside).
+    result = RESULTS.successful
+    for failed, item in (
+        (degenerate | ~(h > 0), RESULTS.degenerate),
+        (through_origin, RESULTS.collinear_through_camera),
+        (n_in < min_inliers, RESULTS.too_few_inliers),
+        (behind_camera, RESULTS.behind_camera),
+        (~finite, RESULTS.nonfinite),
+    ):
+        result = RESULTS.where(failed, item, result)
+    ok = result == RESULTS.successful
     placeholder_v = jnp.zeros(3, dtype).at[0].set(1.0)
     return ConeCalibration(
         eye_center=jnp.where(ok, p, 0.0),
@@ -450,9 +407,9 @@ def calibrate_cone(
         degenerate_tol: relative tolerance of the degeneracy tests (the line's
             distance to the origin, and the inliers' spread off the line, each
             relative to the inliers' extent along the line).
-        throw: if ``True`` a failure raises ``ValueError`` (under ``jit``/``vmap``
-            an ``equinox`` runtime error); if ``False`` it is reported in
-            ``result`` with NaN-free placeholder values.
+        throw: if ``True`` a failure raises :class:`jaxgaze.results.FitError`
+            (under ``jit``/``vmap`` an ``equinox`` runtime error); if ``False`` it
+            is reported in ``result`` with NaN-free placeholder values.
 
     Returns:
         :class:`ConeCalibration`. The bandwidth is the per-axis standard
@@ -465,9 +422,10 @@ def calibrate_cone(
 
     Raises:
         ValueError: (always, for concrete input) ``points`` not ``(M, 3)``,
-            ``M < 3``, or NaN/inf; (if ``throw``) the points are mostly behind
-            the camera, too few are inliers, they are collinear through the
-            camera centre, or they are degenerate (coincident or exactly collinear).
+            ``M < 3``, or NaN/inf.
+        FitError: (if ``throw``) the points are mostly behind the camera, too
+            few are inliers, they are collinear through the camera centre, or
+            they are degenerate (coincident or exactly collinear).
 
     Works under ``jit`` and ``vmap`` (value checks then become result codes).
     """
@@ -503,20 +461,7 @@ def calibrate_cone(
         float(min_inlier_fraction), float(degenerate_tol),
     )
     if throw:
-        if concrete and _is_concrete(out.result):
-            code = CalibrationResult(int(out.result))
-            if code != CalibrationResult.successful:
-                raise ValueError(_MESSAGES[code])
-        else:
-            codes = list(CalibrationResult)
-            out = out._replace(
-                eye_center=eqx.branched_error_if(
-                    out.eye_center,
-                    out.result != CalibrationResult.successful,
-                    jnp.clip(out.result, 0, len(codes) - 1),
-                    [_MESSAGES[c] for c in codes],
-                )
-            )
+        out = out._replace(eye_center=throw_if_failed(out.eye_center, out.result, "calibrate_cone"))
     return out
 
 

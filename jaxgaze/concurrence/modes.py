@@ -32,6 +32,7 @@ Pipeline for one frame (all in JAX, fixed shapes, so it vmaps over frames):
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from typing import NamedTuple
@@ -43,6 +44,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
+from jaxgaze._checks import bucket_size
 from jaxgaze._batching import (
     lapack_eigh_cost,
     lapack_guard_applies,
@@ -60,6 +62,7 @@ __all__ = [
     "MeanShiftResult",
     "Concurrences",
     "Tracks",
+    "ConcurrenceOptions",
     "meanshift",
     "find_concurrences",
     "find_concurrences_over_frames",
@@ -71,6 +74,96 @@ __all__ = [
 DEFAULT_SEED_DEPTHS = tuple(float(x) for x in np.geomspace(0.4, 16.0, 16))
 
 _REGION_LEVEL = 0.8  # Park et al. Sec. 4.1: region above 80 % of the local maximum
+
+
+@dataclasses.dataclass(frozen=True)
+class ConcurrenceOptions:
+    """Options of the concurrence search (Park et al. 2012, Sec. 3.3); frozen, validated, hashable.
+
+    One object serves :func:`find_concurrences`, :func:`find_concurrences_over_frames`
+    and :func:`~jaxgaze.concurrence.propagate_to_concurrences`, and is the static
+    argument of their compiled programs. Vary one field with
+    ``dataclasses.replace(options, min_rays=3)``.
+
+    Attributes:
+        seed_depths: depths (m) of the mean-shift seeds along every ray.
+        bounds: optional world-frame box ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``
+            (m; ``±inf`` allowed) where points of regard can lie, e.g. above the
+            floor of the room. Modes outside it are rejected — a flat prior on the
+            scene volume that removes chance crossings of two rays behind a wall or
+            under the floor, which otherwise compete with real two-ray concurrences.
+        min_rays: fewest rays a mode must claim to count (≥ 2).
+        claim_bandwidths: a ray supports a mode if ``‖d(l, x)‖ < claim_bandwidths · search_scale · h``.
+        search_scale: the mode search and the claims use the field smoothed with
+            bandwidth ``search_scale · h``; locations and covariances use ``h``.
+        dominance: reject a mode if one ray carries more than this share of ``Σ w``.
+        merge_radius: seeds converging within this distance (m) of a mode merge into it.
+        tol, max_iter: mean-shift stopping rule (step length in m, iteration cap).
+        max_modes: cap on the number of modes (default ``N // min_rays``).
+        prior_scale: standard deviation (m) of the weak Gaussian prior on a location.
+        refine_steps: Levenberg–Marquardt steps for the location refinement.
+
+    Sequences are stored as tuples of floats and numbers as ``int``/``float``, so
+    equal options hash equal. Bad values raise ``ValueError`` naming the field.
+    """
+
+    seed_depths: tuple[float, ...] = DEFAULT_SEED_DEPTHS
+    bounds: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+    min_rays: int = 2
+    claim_bandwidths: float = 3.0
+    search_scale: float = 2.0
+    dominance: float = 0.9
+    merge_radius: float = 0.3
+    tol: float = 1e-4
+    max_iter: int = 500
+    max_modes: int | None = None
+    prior_scale: float = 100.0
+    refine_steps: int = 64
+
+    def __post_init__(self):
+        def integer(name, value, least, what=""):
+            real = not isinstance(value, bool) and isinstance(value, (int, np.integer, float, np.floating))
+            if not (real and math.isfinite(value) and int(value) == value and value >= least):
+                raise ValueError(f"{name} must be an integer ≥ {least}{what}, got {value}")
+            return int(value)
+
+        def number(name, value):
+            try:
+                return float(value)
+            except (TypeError, ValueError):
+                raise ValueError(f"{name} must be a number, got {value!r}") from None
+
+        set_ = functools.partial(object.__setattr__, self)
+        set_("min_rays", integer("min_rays", self.min_rays, 2, " (a concurrence needs two people)"))
+        set_("dominance", number("dominance", self.dominance))
+        if not 0 < self.dominance <= 1:
+            raise ValueError(f"dominance must lie in (0, 1], got {self.dominance}")
+        for name in ("claim_bandwidths", "search_scale", "merge_radius", "tol", "prior_scale"):
+            value = number(name, getattr(self, name))
+            if not value > 0:
+                raise ValueError(f"{name} must be positive, got {value}")
+            set_(name, value)
+        set_("max_iter", integer("max_iter", self.max_iter, 1))
+        set_("refine_steps", integer("refine_steps", self.refine_steps, 1))
+        if self.max_modes is not None:
+            set_("max_modes", integer("max_modes", self.max_modes, 0, " or None"))
+        try:
+            depths = np.asarray(self.seed_depths, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            depths = np.zeros(0)
+        if depths.size == 0 or not np.all(np.isfinite(depths)) or np.any(depths <= 0):
+            raise ValueError("seed_depths must be a non-empty list of positive, finite depths (metres)")
+        set_("seed_depths", tuple(float(d) for d in depths))
+        if self.bounds is not None:
+            try:
+                box = np.asarray(self.bounds, dtype=float)
+            except (TypeError, ValueError):
+                box = np.zeros(0)
+            if box.shape != (2, 3) or np.any(np.isnan(box)) or not np.all(box[0] < box[1]):
+                raise ValueError(
+                    f"bounds must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max, got {self.bounds!r}"
+                )
+            set_("bounds", tuple(tuple(float(v) for v in row) for row in box))
 
 
 class MeanShiftResult(NamedTuple):
@@ -372,18 +465,13 @@ def _concurrences_one_frame(
     seed_depths: Float[Array, "S"],
     bounds: Float[Array, "2 3"],
     *,
-    min_rays: int,
-    claim_bandwidths: float,
-    search_scale: float,
-    dominance: float,
-    merge_radius: float,
-    tol: float,
-    max_iter: int,
+    options: ConcurrenceOptions,
     max_modes: int,
-    prior_scale: float,
-    refine_steps: int,
     modes_per_batch: int,
 ) -> Concurrences:
+    min_rays, claim_bandwidths, dominance = options.min_rays, options.claim_bandwidths, options.dominance
+    merge_radius, prior_scale, refine_steps = options.merge_radius, options.prior_scale, options.refine_steps
+    search_scale, tol, max_iter = options.search_scale, options.tol, options.max_iter
     n = rays.num_rays
     dtype = rays.origins.dtype
     search = eqx.tree_at(lambda r: r.bandwidth, rays, rays.bandwidth * search_scale)
@@ -478,19 +566,7 @@ def _concurrences_one_frame(
     )
 
 
-_STATIC = (
-    "min_rays",
-    "claim_bandwidths",
-    "search_scale",
-    "dominance",
-    "merge_radius",
-    "tol",
-    "max_iter",
-    "max_modes",
-    "prior_scale",
-    "refine_steps",
-    "modes_per_batch",
-)
+_STATIC = ("options", "max_modes", "modes_per_batch")
 _one_frame_jit = jax.jit(_concurrences_one_frame, static_argnames=_STATIC)
 # jax.vmap does not forward keyword arguments to in_axes, so wrap explicitly.
 _over_frames_jit = jax.jit(
@@ -499,36 +575,18 @@ _over_frames_jit = jax.jit(
 )
 
 
-def _options(rays, seed_depths, bounds, min_rays, claim_bandwidths, search_scale, dominance, merge_radius, tol, max_iter, max_modes,
-             prior_scale, refine_steps):
+def _prepare(rays, options):
+    """``(seed depths, bounds box, static keywords)`` of the compiled programs for ``rays``."""
     if not isinstance(rays, GazeRays):
         raise TypeError(f"expected jaxgaze.GazeRays, got {type(rays).__name__}")
-    if int(min_rays) != min_rays or min_rays < 2:
-        raise ValueError(f"min_rays must be an integer ≥ 2 (a concurrence needs two people), got {min_rays}")
-    if not 0 < dominance <= 1:
-        raise ValueError(f"dominance must lie in (0, 1], got {dominance}")
-    for name, value in (("claim_bandwidths", claim_bandwidths), ("search_scale", search_scale), ("merge_radius", merge_radius), ("tol", tol),
-                        ("prior_scale", prior_scale)):
-        if not value > 0:
-            raise ValueError(f"{name} must be positive, got {value}")
-    depths = np.asarray(seed_depths, dtype=float).reshape(-1)
-    if depths.size == 0 or not np.all(np.isfinite(depths)) or np.any(depths <= 0):
-        raise ValueError("seed_depths must be a non-empty list of positive, finite depths (metres)")
+    if not isinstance(options, ConcurrenceOptions):
+        raise TypeError(f"options must be a jaxgaze.ConcurrenceOptions, got {type(options).__name__}")
     dtype = rays.origins.dtype
-    if bounds is None:
-        box = np.array([[-np.inf] * 3, [np.inf] * 3])
-    else:
-        box = np.asarray(bounds, dtype=float)
-        if box.shape != (2, 3) or np.any(np.isnan(box)) or not np.all(box[0] < box[1]):
-            raise ValueError(f"bounds must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max, got {bounds!r}")
+    box = np.array([[-np.inf] * 3, [np.inf] * 3]) if options.bounds is None else np.asarray(options.bounds)
     n = rays.num_rays
-    k = n // min_rays if max_modes is None else min(int(max_modes), n // min_rays)
-    static = dict(
-        min_rays=int(min_rays), claim_bandwidths=float(claim_bandwidths), search_scale=float(search_scale), dominance=float(dominance),
-        merge_radius=float(merge_radius), tol=float(tol), max_iter=int(max_iter), max_modes=k,
-        prior_scale=float(prior_scale), refine_steps=int(refine_steps), modes_per_batch=_batch_plan(n, k)[1],
-    )
-    return jnp.asarray(depths, dtype), jnp.asarray(box, dtype), static
+    k = n // options.min_rays if options.max_modes is None else min(options.max_modes, n // options.min_rays)
+    static = dict(options=options, max_modes=k, modes_per_batch=_batch_plan(n, k)[1])
+    return jnp.asarray(options.seed_depths, dtype), jnp.asarray(box, dtype), static
 
 
 #: Frames per compiled batch on XLA:CPU when the LAPACK bound allows more.
@@ -577,40 +635,14 @@ def _empty(batch_shape: tuple[int, ...], n: int, dtype) -> Concurrences:
 
 def find_concurrences(
     rays: GazeRays,
-    *,
-    seed_depths=DEFAULT_SEED_DEPTHS,
-    bounds=None,
-    min_rays: int = 2,
-    claim_bandwidths: float = 3.0,
-    search_scale: float = 2.0,
-    dominance: float = 0.9,
-    merge_radius: float = 0.3,
-    tol: float = 1e-4,
-    max_iter: int = 500,
-    max_modes: int | None = None,
-    prior_scale: float = 100.0,
-    refine_steps: int = 64,
+    options: ConcurrenceOptions = ConcurrenceOptions(),
 ) -> Concurrences:
     """Number, locations and uncertainty of the gaze concurrences in one frame.
 
     Args:
         rays: one frame of primary gaze rays, ``(N, 3)``, world frame, metres.
-        seed_depths: depths (m) of the mean-shift seeds along every ray.
-        bounds: optional world-frame box ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``
-            (m; ``±inf`` allowed) where points of regard can lie, e.g. above the
-            floor of the room. Modes outside it are rejected — a flat prior on the
-            scene volume that removes chance crossings of two rays behind a wall or
-            under the floor, which otherwise compete with real two-ray concurrences.
-        min_rays: fewest rays a mode must claim to count (≥ 2).
-        claim_bandwidths: a ray supports a mode if ``‖d(l, x)‖ < claim_bandwidths · search_scale · h``.
-        search_scale: the mode search and the claims use the field smoothed with
-            bandwidth ``search_scale · h``; locations and covariances use ``h``.
-        dominance: reject a mode if one ray carries more than this share of ``Σ w``.
-        merge_radius: seeds converging within this distance (m) of a mode merge into it.
-        tol, max_iter: mean-shift stopping rule (step length in m, iteration cap).
-        max_modes: cap on the number of modes (default ``N // min_rays``).
-        prior_scale: standard deviation (m) of the weak Gaussian prior on a location.
-        refine_steps: Levenberg–Marquardt steps for the location refinement.
+        options: the search options, a :class:`ConcurrenceOptions` (seeds, bounds,
+            ``min_rays``, claim and merge radii, stopping rules, prior, ``max_modes``).
 
     Returns:
         :class:`Concurrences` with exactly the ``K`` modes found, ordered by
@@ -621,15 +653,13 @@ def find_concurrences(
             f"find_concurrences takes one frame; rays have batch shape {rays.batch_shape}. "
             "Use find_concurrences_over_frames for a recording."
         )
-    options = (seed_depths, bounds, min_rays, claim_bandwidths, search_scale, dominance, merge_radius, tol, max_iter, max_modes,
-               prior_scale, refine_steps)
-    if _options(rays, *options)[2]["max_modes"] == 0:
+    if _prepare(rays, options)[2]["max_modes"] == 0:
         return _empty((), rays.num_rays, rays.origins.dtype)
     n = rays.num_rays
     # Pad to a multiple of 8 rays so that scenes of similar size share one compilation;
     # padded rays are masked and can never be claimed, so K stays ≤ n // min_rays.
-    padded = _pad_rays(rays, -(-n // _RAY_BUCKET) * _RAY_BUCKET)
-    depths, box, static = _options(padded, *options)
+    padded = _pad_rays(rays, bucket_size(n, minimum=0, multiple=_RAY_BUCKET))
+    depths, box, static = _prepare(padded, options)
     result = _one_frame_jit(padded, depths, box, **static)
     keep = np.asarray(result.valid)
     return Concurrences(
@@ -653,27 +683,17 @@ def _pad_rays(rays: GazeRays, n: int) -> GazeRays:
 
 def find_concurrences_over_frames(
     rays: GazeRays,
+    options: ConcurrenceOptions = ConcurrenceOptions(),
     *,
-    seed_depths=DEFAULT_SEED_DEPTHS,
-    bounds=None,
-    min_rays: int = 2,
-    claim_bandwidths: float = 3.0,
-    search_scale: float = 2.0,
-    dominance: float = 0.9,
-    merge_radius: float = 0.3,
-    tol: float = 1e-4,
-    max_iter: int = 500,
-    max_modes: int | None = None,
-    prior_scale: float = 100.0,
-    refine_steps: int = 64,
     frames_per_batch: int | None = None,
     progress: bool = False,
 ) -> Concurrences:
     """:func:`find_concurrences` for a whole recording, vmapped over batches of frames.
 
     ``rays`` has shape ``(T, N, 3)`` with ``rays.mask`` marking the people
-    present in each frame (see :meth:`GazeRays.stack`). The result is padded to
-    ``K = max_modes`` (default ``N // min_rays``) modes per frame; ``valid``
+    present in each frame (see :meth:`GazeRays.stack`); ``options`` is a
+    :class:`ConcurrenceOptions`. The result is padded to
+    ``K = options.max_modes`` (default ``N // min_rays``) modes per frame; ``valid``
     marks the real ones and ``count`` gives K per frame. Its arrays are numpy
     arrays on the host.
 
@@ -689,8 +709,7 @@ def find_concurrences_over_frames(
     if not isinstance(rays, GazeRays) or len(rays.batch_shape) != 1:
         shape = rays.batch_shape if isinstance(rays, GazeRays) else None
         raise ValueError(f"find_concurrences_over_frames needs rays of shape (T, N, 3); batch shape is {shape}")
-    depths, box, static = _options(rays, seed_depths, bounds, min_rays, claim_bandwidths, search_scale, dominance,
-                                   merge_radius, tol, max_iter, max_modes, prior_scale, refine_steps)
+    depths, box, static = _prepare(rays, options)
     total = rays.batch_shape[0]
     if static["max_modes"] == 0 or total == 0:
         return Concurrences(*(np.asarray(a) for a in _empty(rays.batch_shape, rays.num_rays, rays.origins.dtype)))

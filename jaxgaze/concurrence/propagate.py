@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from jaxgaze.concurrence.modes import find_concurrences, find_concurrences_over_frames
+from jaxgaze.concurrence.modes import ConcurrenceOptions, find_concurrences, find_concurrences_over_frames
 from jaxgaze.geometry import unit
 from jaxgaze.rays import GazeRays
 
@@ -48,7 +48,7 @@ def propagate_to_concurrences(
     camera_centers: Float[Array, "N 3"],
     *,
     max_distance: float = 0.5,
-    **options,
+    options: ConcurrenceOptions = ConcurrenceOptions(),
 ) -> ConcurrenceEnsemble:
     """Carry calibration uncertainty into the concurrences of one frame.
 
@@ -56,7 +56,8 @@ def propagate_to_concurrences(
     (camera frame → world). All draws go through
     :func:`jaxgaze.find_concurrences_over_frames` at once, the draws playing the role
     of frames, and each reference mode (from the mean calibration) is matched to the
-    nearest mode of every draw within ``max_distance`` metres.
+    nearest mode of every draw within ``max_distance`` metres. ``options`` (a
+    :class:`~jaxgaze.concurrence.ConcurrenceOptions`) go to both searches.
     """
     eye = jnp.asarray(eye_centers)
     d = jnp.asarray(directions)
@@ -68,9 +69,9 @@ def propagate_to_concurrences(
         raise ValueError(f"need one camera pose per person: R {R.shape}, centres {C.shape} for N = {eye.shape[1]}")
     origins = jnp.einsum("nij,snj->sni", R, eye) + C
     world_directions = jnp.einsum("nij,snj->sni", R, d)
-    ensemble = find_concurrences_over_frames(GazeRays(origins, world_directions, bandwidths), **options)
+    ensemble = find_concurrences_over_frames(GazeRays(origins, world_directions, bandwidths), options)
     mean_direction = unit(world_directions.mean(0))
-    reference = find_concurrences(GazeRays(origins.mean(0), mean_direction, jnp.asarray(bandwidths).mean(0)), **options)
+    reference = find_concurrences(GazeRays(origins.mean(0), mean_direction, jnp.asarray(bandwidths).mean(0)), options)
 
     ref = np.asarray(reference.locations)  # (K, 3)
     locs = np.asarray(ensemble.locations)  # (S, K', 3)

@@ -17,6 +17,20 @@
   the threshold tuned by extremum seeking;
 * :mod:`~jaxgaze.facial.control` — extremum-seeking control (of the hypothesis threshold);
 * :mod:`~jaxgaze.facial.metrics` — mean and maximum normalised deviations (eq. 3–5).
+
+Where each equation and section lives:
+
+| equation or section | function | file |
+|---|---|---|
+| the generic 3D face (the model of the pose estimators) | ``generic_face``, ``FaceModel`` | ``facial/face_model.py`` |
+| eq. 1, Fig. 7: spatial model and exact configuration search | ``fit_spatial_model``, ``config_log_density``, ``best_configuration`` | ``facial/spatial.py`` |
+| baseline: independent detectors | ``independent_detectors`` | ``facial/spatial.py`` |
+| Sec. 4, "GMM segmentation": point localisation in an ROI | ``fit_gmm``, ``localize_point`` | ``facial/gmm.py`` |
+| eq. 2, Fig. 6: the cascade and its confidence ``y_f`` | ``run_chain``, ``sweep_threshold`` | ``facial/chain.py`` |
+| Fig. 5–6: extremum seeking of the threshold ``T_h`` | ``extremum_seeking``; ``tune_threshold`` | ``facial/control.py``; ``facial/chain.py`` |
+| Sec. 3–4: the cascade on photographs | ``feature_hypotheses``, ``locate_features`` | ``facial/image_features.py`` |
+| Sec. 4: head orientation (Gee & Cipolla 1994; PnP) with covariances | ``orientation_gee_cipolla``, ``gee_cipolla_covariance``, ``orientation_pnp``, ``to_gaze_rays`` | ``facial/orientation.py`` |
+| eq. 3–5: mean and maximum normalised deviations | ``tau``, ``normalized_deviation``, ``cumulative_histogram`` | ``facial/metrics.py`` |
 """
 
 from jaxgaze.facial.chain import ChainResult, run_chain, sweep_threshold, tune_threshold

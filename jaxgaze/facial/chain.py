@@ -53,9 +53,9 @@ from jaxtyping import Array
 
 from jaxgaze.facial.control import ESCTrajectory, extremum_seeking
 from jaxgaze.facial.gmm import localize_point
-from jaxgaze.facial.spatial import SpatialModel, _check_hypotheses, config_log_density, enumerate_combinations
+from jaxgaze.facial.spatial import SpatialModel, check_hypotheses, config_log_density, enumerate_combinations
 
-__all__ = ["ChainResult", "run_chain", "sweep_threshold", "tune_threshold"]
+__all__ = ["ChainResult", "run_chain", "select_face", "sweep_threshold", "tune_threshold"]
 
 
 class ChainResult(NamedTuple):
@@ -112,8 +112,9 @@ def _render(roi_centre, true_centre, visible, u, roi_half, blob_sd, noise):
     return jnp.exp(-0.5 * d2 / blob_sd**2) + noise * u, origin  # u: (size, size) U(0, 1) draws
 
 
-def _select_face(positions, confidences, loc, threshold, model, combos, method):
-    """Threshold-dependent part of the cascade for one face, given its :func:`_localise_batch` output."""
+def select_face(positions, confidences, loc, threshold, model, combos, method):
+    """Threshold-dependent part of the cascade for one face (ROVIS gaze following, Sec. 4): the spatial
+    (or independent) selection of its hypotheses ``(4, H)`` and the GMM-localised points ``loc``."""
     points_all, cov_all, weight_all = loc
     if method == "spatial":
         chosen, found, post = _search(positions, confidences, threshold, model, combos)
@@ -152,11 +153,11 @@ def _localise_batch(P, T, V, key, cfg):
 
 @partial(jax.jit, static_argnames=("method",))
 def _select_batch(P, C, loc, threshold, model, combos, method):
-    return jax.vmap(_select_face, in_axes=(0, 0, 0, None, None, None, None))(P, C, loc, threshold, model, combos, method)
+    return jax.vmap(select_face, in_axes=(0, 0, 0, None, None, None, None))(P, C, loc, threshold, model, combos, method)
 
 
 def _prepare(hypotheses, features_image, visible):
-    P, C, _ = _check_hypotheses(hypotheses, 0.0)  # the same checks as the spatial search
+    P, C, _ = check_hypotheses(hypotheses, 0.0)  # the same checks as the spatial search
     batch = P.shape[:-3]
     T = np.asarray(features_image, float)
     if T.shape != (*batch, 4, 2) or not np.all(np.isfinite(T)):
@@ -192,7 +193,7 @@ def run_chain(
     num_iters: int = 15,
 ) -> ChainResult:
     """Run the cascade at threshold ``T_h = threshold`` on ``hypotheses`` (a
-    :class:`~jaxgaze.simulate.faces.Hypotheses` or ``(positions, confidences)``,
+    :class:`~jaxgaze.facial.face_model.Hypotheses` or ``(positions, confidences)``,
     ``(..., 4, H, 2)``, ``(..., 4, H)``).
 
     ``features_image (..., 4, 2)`` and ``visible (..., 4)`` (default all) are the

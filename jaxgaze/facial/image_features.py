@@ -58,12 +58,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgaze.facial.chain import ChainResult, _select_face
+from jaxgaze.facial.chain import ChainResult, select_face
 from jaxgaze.facial.face_model import POINTS, mouth_corners
 from jaxgaze.facial.gmm import localize_point
 from jaxgaze.facial.face_model import Hypotheses
-from jaxgaze.facial.spatial import SpatialModel, enumerate_combinations, fit_spatial_model
-from jaxgaze.vision.faces import FaceBox, _cascade, detect_faces
+from jaxgaze.facial.spatial import SpatialModel, enumerate_combinations
+from jaxgaze.vision.faces import FaceBox, haar_cascade, detect_faces
 from jaxgaze.vision.images import rotation_about, to_gray_float, to_gray_uint8, warp_affine
 
 __all__ = [
@@ -400,7 +400,7 @@ def _cascade_boxes(gray_u8, face: FaceBox, eye_distance: float) -> dict:
         lo, hi = max(6, int(lo * eye_distance)), max(7, int(math.ceil(hi * eye_distance)))
         boxes = []
         if y1 - y0 > lo and x1 - x0 > lo:
-            rects, neighbours = _cascade(name).detectMultiScale2(
+            rects, neighbours = haar_cascade(name).detectMultiScale2(
                 gray_u8[y0:y1, x0:x1], scaleFactor=1.1, minNeighbors=2, minSize=(lo, lo), maxSize=(hi, hi)
             )
             for (bx, by, bw, bh), n in zip(np.reshape(rects, (-1, 4)), np.ravel(neighbours)):
@@ -425,7 +425,7 @@ def feature_hypotheses(image, face=None, *, templates: FeatureTemplates | None =
     A face box with a ``rotation`` (found in a turned image) is searched in the image
     turned upright about its centre; positions are returned in ``image``'s pixels.
     Returns ``(hypotheses, face, eye_distance_px, likelihoods)``: a
-    :class:`~jaxgaze.simulate.faces.Hypotheses` with ``(4, H, ...)`` fields (empty
+    :class:`~jaxgaze.facial.face_model.Hypotheses` with ``(4, H, ...)`` fields (empty
     slots have confidence 0), the face box used, the inter-ocular distance it predicts,
     and per slot the GMM's pixel-likelihood window ``(4, H, S, S)`` with its top-left
     corner ``(4, H, 2)`` and pixel size ``(4, H)`` in the upright image, and the 2×3
@@ -519,7 +519,7 @@ def _localise_slots(patches, origins, pixel):
 
 @functools.partial(jax.jit, static_argnames=("method",))
 def _select(positions, confidences, loc, threshold, model, combos, method):
-    return _select_face(positions, confidences, loc, threshold, model, combos, method)
+    return select_face(positions, confidences, loc, threshold, model, combos, method)
 
 
 def locate_features(

@@ -42,8 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgaze.facial.face_model import POINTS, R_OPTICAL_FROM_FRONTAL, FaceModel, generic_face
-from jaxgaze.geometry import direction_to_yaw_pitch, head_pose_to_rotation
-from jaxgaze.geometry import R_OURS_FROM_OPENCV
+from jaxgaze.geometry import R_OURS_FROM_OPENCV, head_pose_to_rotation, rotation_to_head_pose
 from jaxgaze.rays import GazeRays
 
 __all__ = [
@@ -54,8 +53,8 @@ __all__ = [
     "gee_cipolla_ratios",
     "orientation_gee_cipolla",
     "orientation_pnp",
-    "pose_to_rotation",
-    "rotation_to_pose",
+    "head_pose_to_optical_rotation",
+    "optical_rotation_to_head_pose",
     "to_gaze_rays",
 ]
 
@@ -68,29 +67,30 @@ _RE, _LE, _NOSE, _MR, _ML = range(5)
 # Pose <-> rotation (built from jaxgaze.geometry, float64)
 
 
-def _pose_to_rotation_jnp(yaw, pitch, roll):
-    return jnp.asarray(R_OPTICAL_FROM_FRONTAL) @ head_pose_to_rotation(jnp.stack([pitch, yaw, roll]))
+def _optical_from_head(yaw, pitch, roll):
+    return jnp.asarray(R_OPTICAL_FROM_FRONTAL) @ head_pose_to_rotation(yaw, pitch, roll)
 
 
-_pose_to_rotation_jit = jax.jit(_pose_to_rotation_jnp)
-_direction_to_yaw_pitch_jit = jax.jit(direction_to_yaw_pitch)
+_optical_from_head_jit = jax.jit(_optical_from_head)
+_rotation_to_head_pose_jit = jax.jit(rotation_to_head_pose)
 
 
-def pose_to_rotation(yaw: float, pitch: float, roll: float = 0.0) -> np.ndarray:
-    """``R_optical_from_head`` ``(3, 3)`` for a pose relative to the frontal frame."""
+def head_pose_to_optical_rotation(yaw: float, pitch: float, roll: float = 0.0) -> np.ndarray:
+    """``R_optical_from_head = R_OPTICAL_FROM_FRONTAL · head_pose_to_rotation(yaw, pitch, roll)``, ``(3, 3)`` float64.
+
+    :func:`jaxgaze.geometry.head_pose_to_rotation` and the fixed frontal → optical frame change.
+    """
     with jax.enable_x64(True):
-        R = _pose_to_rotation_jit(jnp.float64(yaw), jnp.float64(pitch), jnp.float64(roll))
+        R = _optical_from_head_jit(jnp.float64(yaw), jnp.float64(pitch), jnp.float64(roll))
         return np.asarray(R, dtype=np.float64)
 
 
-def rotation_to_pose(R_optical_from_head) -> tuple[float, float, float]:
-    """Inverse of :func:`pose_to_rotation`: ``(yaw, pitch, roll)`` in radians."""
+def optical_rotation_to_head_pose(R_optical_from_head) -> tuple[float, float, float]:
+    """Inverse of :func:`head_pose_to_optical_rotation`: ``(yaw, pitch, roll)`` in radians."""
     R = R_OPTICAL_FROM_FRONTAL.T @ np.asarray(R_optical_from_head, dtype=np.float64)
     with jax.enable_x64(True):
-        yaw, pitch = _direction_to_yaw_pitch_jit(jnp.asarray(R[:, 0]))
-        yaw, pitch = float(yaw), float(pitch)
-    roll = float(np.arctan2(R[2, 1], R[2, 2]))
-    return yaw, pitch, roll
+        yaw, pitch, roll = _rotation_to_head_pose_jit(jnp.asarray(R))
+        return float(yaw), float(pitch), float(roll)
 
 
 # ---------------------------------------------------------------------------
@@ -280,7 +280,7 @@ def orientation_gee_cipolla(
     if focal_px is not None and principal_point is None:
         raise ValueError("principal_point is required with focal_px")
     R = _gee_cipolla_rotation(points_2d, R_m, R_n, m, focal_px, principal_point)
-    yaw, pitch, _ = rotation_to_pose(R)
+    yaw, pitch, _ = optical_rotation_to_head_pose(R)
     return yaw, pitch
 
 
@@ -358,7 +358,7 @@ class HeadOrientation(NamedTuple):
 
 
 def _residual_fn(params, X, uv, w, focal, cx, cy):
-    R = _pose_to_rotation_jnp(params[0], params[1], params[2])
+    R = _optical_from_head(params[0], params[1], params[2])
     Xc = X @ R.T + params[3:6]
     proj = jnp.stack([focal * Xc[:, 0] / Xc[:, 2] + cx, focal * Xc[:, 1] / Xc[:, 2] + cy], axis=-1)
     return ((proj - uv) * w[:, None]).reshape(-1)
@@ -442,7 +442,7 @@ def orientation_pnp(
         t0 = np.array([(c[0] - cx) / f * depth, (c[1] - cy) / f * depth, depth])
         candidates = []
         for yaw0 in (0.0, 0.6, -0.6):
-            r0, _ = cv2.Rodrigues(pose_to_rotation(yaw0, 0.0, 0.0))
+            r0, _ = cv2.Rodrigues(head_pose_to_optical_rotation(yaw0, 0.0, 0.0))
             ok, rvec, tvec = cv2.solvePnP(Xv, uvv, K, dist, r0.copy(), t0.reshape(3, 1).copy(), True, cv2.SOLVEPNP_ITERATIVE)
             if ok and tvec[2, 0] > 0:
                 candidates.append((rvec, tvec))
@@ -453,7 +453,7 @@ def orientation_pnp(
     good = [c for c, e in zip(candidates, errs) if e <= best + 0.05]
 
     def off_frontal(c):
-        y, pt, _ = rotation_to_pose(cv2.Rodrigues(c[0])[0])
+        y, pt, _ = optical_rotation_to_head_pose(cv2.Rodrigues(c[0])[0])
         return y * y + pt * pt
 
     rvec, tvec = min(good, key=off_frontal)
@@ -461,7 +461,7 @@ def orientation_pnp(
     t = tvec.reshape(3).astype(np.float64)
     if t[2] <= 0:
         raise ValueError("solvePnP put the face behind the camera")
-    yaw, pitch, roll = rotation_to_pose(R)
+    yaw, pitch, roll = optical_rotation_to_head_pose(R)
     params = np.array([yaw, pitch, roll, *t])
     w = vis.astype(np.float64)
     uv0 = np.where(vis[:, None], p, 0.0)
@@ -525,7 +525,7 @@ def head_orientation_gee_cipolla(
     R_m = r_m if R_m is None else float(R_m)
     R_n = r_n if R_n is None else float(R_n)
     R, t = _gee_cipolla_rotation(points_2d, R_m, R_n, m, float(focal_px), principal_point, full=True)
-    yaw, pitch, roll = rotation_to_pose(R)
+    yaw, pitch, roll = optical_rotation_to_head_pose(R)
     sigma = float(np.hypot(float(pixel_sigma), _shape_px(shape_sd, float(focal_px), m, float(t[2]))))
     cov = gee_cipolla_covariance(
         points_2d, pixel_sigma=sigma, R_m=R_m, R_n=R_n, model=m, focal_px=focal_px, principal_point=principal_point

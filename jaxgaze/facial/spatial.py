@@ -43,6 +43,7 @@ __all__ = [
     "independent_detectors",
     "selected_positions",
     "enumerate_combinations",
+    "check_hypotheses",
 ]
 
 #: subset index → present mask over FEATURES: 0 all four, 1 + j feature j missing.
@@ -164,7 +165,9 @@ def _search_one(positions, confidences, model, threshold, combos):
 _search_jit = jax.jit(_search_one)
 
 
-def _check_hypotheses(hypotheses, threshold):
+def check_hypotheses(hypotheses, threshold):
+    """Validated ``(positions (..., 4, H, 2), confidences (..., 4, H), threshold)`` of ``Hypotheses``
+    or a ``(positions, confidences)`` pair; ``ValueError`` naming the bad one."""
     if isinstance(hypotheses, Hypotheses):
         positions, confidences = hypotheses.positions, hypotheses.confidences
     else:
@@ -197,7 +200,7 @@ def best_configuration(hypotheses, model: SpatialModel, threshold: float = 0.0) 
     Raises:
         ValueError: bad shapes, NaN/inf inputs, confidences outside [0, 1], NaN threshold.
     """
-    positions, confidences, threshold = _check_hypotheses(hypotheses, threshold)
+    positions, confidences, threshold = check_hypotheses(hypotheses, threshold)
     batch = positions.shape[:-3]
     H = positions.shape[-2]
     combos = jnp.asarray(enumerate_combinations(H))
@@ -212,7 +215,7 @@ def best_configuration(hypotheses, model: SpatialModel, threshold: float = 0.0) 
 def independent_detectors(hypotheses, threshold: float = 0.0) -> jnp.ndarray:
     """Baseline: the best-confidence hypothesis per feature (confidence > ``threshold``), no
     spatial model; ``(..., 4)`` slot indices, −1 where a feature has none."""
-    _, confidences, threshold = _check_hypotheses(hypotheses, threshold)
+    _, confidences, threshold = check_hypotheses(hypotheses, threshold)
     best = np.argmax(confidences, axis=-1)
     ok = np.take_along_axis(confidences, best[..., None], -1)[..., 0] > threshold
     return jnp.asarray(np.where(ok, best, -1))

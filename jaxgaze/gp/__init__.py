@@ -7,11 +7,24 @@
 * :mod:`jaxgaze.gp.exact` — exact GP: log marginal likelihood, prediction
   (eq. 12–13), Type-II maximum-likelihood fit.
 * :mod:`jaxgaze.gp.posterior` — NUTS over the hyperparameters, predictions averaged over draws.
+
+Where each equation and section lives:
+
+| equation or section | function | file |
+|---|---|---|
+| Yücel et al. eq. 5–7: the ``f1`` kernel (RQ + arc-sine + white) | ``gaze_direction_kernel`` | ``gp/kernels.py`` |
+| Yücel et al. Sec. V: the ``f2`` kernel | ``target_depth_kernel`` | ``gp/kernels.py`` |
+| Rasmussen & Williams eq. 4.19: rational quadratic | ``RationalQuadratic`` | ``gp/kernels.py`` |
+| Yücel et al. eq. 7: white noise ``σ0²`` | ``White`` | ``gp/kernels.py`` |
+| Rasmussen & Williams eq. 2.30: log marginal likelihood | ``log_marginal_likelihood`` | ``gp/exact.py`` |
+| Yücel et al. eq. 12–13: predictive mean and variance | ``predict`` | ``gp/exact.py`` |
+| Yücel et al. after eq. 13: type-II maximum likelihood | ``fit`` | ``gp/exact.py`` |
+| Yücel et al. eq. 11 with a prior: posterior of the hyperparameters | ``hyperparameter_model``, ``sample_hyperparameter_posterior`` | ``gp/posterior.py`` |
+| positive parameters, ``exp(raw) + floor`` | ``positive``, ``unconstrain_positive``, ``bound_penalty`` | ``gp/transforms.py`` |
 """
 
 from jaxgaze.gp.exact import (
     DEFAULT_RELATIVE_JITTER,
-    FitResult,
     FittedGP,
     fit,
     log_marginal_likelihood,
@@ -49,7 +62,6 @@ __all__ = [
     "positive",
     "unconstrain_positive",
     "DEFAULT_RELATIVE_JITTER",
-    "FitResult",
     "FittedGP",
     "fit",
     "log_marginal_likelihood",

@@ -25,14 +25,13 @@ observations is ``K = kernel(X) + jitter·I``.
 absolute value instead (e.g. to match scikit-learn's ``alpha``). If the
 Cholesky factor still has NaNs the matrix is not positive definite: the
 functions raise ``ValueError`` naming the jitter (no silent retry), :func:`fit`
-reports :attr:`FitResult.not_positive_definite`.
+reports :attr:`jaxgaze.results.RESULTS.not_positive_definite`.
 
 All computations run in the dtype of the inputs (float32 or float64).
 """
 
 from __future__ import annotations
 
-import enum
 import functools
 import math
 import sys
@@ -52,11 +51,11 @@ from jaxtyping import Array, Float, PRNGKeyArray
 from tqdm import tqdm
 
 from jaxgaze.gp.transforms import bound_penalty
-from jaxgaze.gp.kernels import Kernel, _DataStats
+from jaxgaze.gp.kernels import Kernel, DataStats
+from jaxgaze.results import RESULTS, throw_if_failed
 
 __all__ = [
     "DEFAULT_RELATIVE_JITTER",
-    "FitResult",
     "FittedGP",
     "log_marginal_likelihood",
     "predict",
@@ -68,40 +67,6 @@ DEFAULT_RELATIVE_JITTER = {"float64": 1e-6, "float32": 1e-5}
 
 _MIN_POINTS = 2
 _LOG_2PI = math.log(2.0 * math.pi)
-
-
-class FitResult(enum.IntEnum):
-    """Outcome of :func:`fit` (a value, not a warning)."""
-
-    successful = 0
-    #: the last stage (all data) used ``max_steps`` without meeting the tolerance;
-    #: the returned kernel is the best point reached.
-    max_steps_reached = 1
-    #: K(X, X) + jitter·I is not positive definite at the final parameters.
-    not_positive_definite = 2
-    #: no starting point gave a finite marginal likelihood.
-    nonfinite = 3
-    #: the last stage stopped on another ``optimistix.RESULTS`` failure, or gave a
-    #: non-finite likelihood (the previous stage's optimum is returned).
-    optimiser_failed = 4
-
-
-_MESSAGES = {
-    FitResult.successful: "fit converged",
-    FitResult.max_steps_reached: (
-        "fit: the last stage (all data) reached max_steps before converging; the kernel is the best point "
-        "reached; raise max_steps or tol"
-    ),
-    FitResult.not_positive_definite: (
-        "fit: K(X, X) + jitter·I is not positive definite at the fitted parameters (jitter {jitter:.3g}); "
-        "add a White noise term or pass a larger jitter"
-    ),
-    FitResult.nonfinite: (
-        "fit: the log marginal likelihood is NaN or infinite at every starting point (jitter {jitter:.3g}); "
-        "check the kernel, scale the inputs, or pass a larger jitter"
-    ),
-    FitResult.optimiser_failed: "fit: the optimiser stopped on an optimistix failure in the last stage",
-}
 
 
 # ---------------------------------------------------------------------------
@@ -208,9 +173,7 @@ def _host_potri(bits: np.ndarray, dtype) -> np.ndarray:
     ``potri`` (``lower=1``) works in place on one Fortran-ordered copy of ``L``; that
     array's memory, read row-major, is its transpose: ``K⁻¹``'s lower triangle lands in
     the upper one, and the strict lower triangle holds ``L``'s strict upper (zero). The
-    caller uses that triangle as it is. The earlier version also let
-    f2py make that copy but then spent three more n² passes and two copies in NumPy
-    (about 40 % of the callback's time at n = 1000); the values are bit-identical.
+    caller uses that triangle as it is, with no further pass or copy in NumPy.
     """
     bits = np.asarray(bits)
     L = np.ascontiguousarray(bits).view(dtype).reshape(bits.shape[:2])
@@ -424,7 +387,13 @@ class FittedGP(NamedTuple):
     kernel: Kernel
     #: exact log marginal likelihood at ``kernel`` on all data, in the data dtype.
     log_marginal_likelihood: Float[Array, ""]
-    result: FitResult
+    #: a :class:`jaxgaze.results.RESULTS` item: ``successful``; ``max_steps_reached`` (the
+    #: last stage, on all data, used ``max_steps``: the kernel is the best point reached);
+    #: ``not_positive_definite`` (K + jitter·I at the final parameters); ``nonfinite`` (no
+    #: starting point gave a finite marginal likelihood); ``optimiser_failed`` (the last
+    #: stage stopped on another ``optimistix.RESULTS`` failure or at a non-finite
+    #: likelihood: the previous stage's optimum is returned).
+    result: RESULTS
     X: Float[Array, "n D"]
     y: Float[Array, " n"]
     #: lower Cholesky factor of ``kernel(X) + jitter·I``.
@@ -440,17 +409,18 @@ class FittedGP(NamedTuple):
 
     @property
     def message(self) -> str:
-        return _MESSAGES[self.result].format(jitter=self.jitter)
+        """``RESULTS[result]``, with the jitter where it matters."""
+        return _message(self.result, self.jitter)
 
     def predict(self, X_new: Float[Array, "m D"], full_covariance: bool = False):
         """Posterior ``(mean, variance)`` or ``(mean, covariance)`` at ``X_new`` (eq. 12–13)."""
-        if self.result in (FitResult.not_positive_definite, FitResult.nonfinite):
+        if bool(self.result == RESULTS.not_positive_definite) or bool(self.result == RESULTS.nonfinite):
             raise ValueError(f"cannot predict from a failed fit: {self.message}")
         X_new = _check_new(X_new, self.X)
         return _predict_from_factor(self.kernel, self.X, self.cholesky, self.alpha, X_new, bool(full_covariance))
 
 
-def _data_stats(X: np.ndarray, y: np.ndarray) -> _DataStats:
+def _data_stats(X: np.ndarray, y: np.ndarray) -> DataStats:
     n, d = X.shape
     iu = np.triu_indices(n, k=1)
     diff = np.abs(X[:, None, :] - X[None, :, :])[iu]  # (pairs, D)
@@ -461,7 +431,7 @@ def _data_stats(X: np.ndarray, y: np.ndarray) -> _DataStats:
     med_d = np.where(med_d > 0, med_d, scale / math.sqrt(d)) * math.sqrt(d)
     y_var = float(np.var(y))
     y_var = y_var if y_var > 0 else max(float(np.mean(y**2)), 1.0)
-    return _DataStats(
+    return DataStats(
         y_var=y_var,
         y_mean_sq=float(np.mean(y) ** 2),
         dist_median=scale,
@@ -679,8 +649,7 @@ def _stage_sizes(n: int, first: int) -> list[int]:
 
     The float64 stage on all data starts from the last subset's optimum; on the flat
     ridges of the benchmark's likelihood that start is only as good as the subset is
-    large. At n = 1000 (256 → 512 → 1000 instead of 256 → 1000) the float64 stage
-    needs 4–13 steps instead of 9–20 over 5 keys (``benchmarks/RESULTS.md``).
+    large (step counts with and without the extra doubling: ``benchmarks/RESULTS.md``).
     """
     sizes = [min(n, first)]
     while sizes[-1] * _STAGE_GROWTH * _STAGE_MIN_LAST_RATIO <= n:
@@ -739,24 +708,20 @@ def fit(
        Hessian), estimated at each accepted point from 16 random probes (one
        extra Cholesky), with eigenvalues floored at 1e-4 per point and a
        backtracking line search. From poor starts it needs fewer steps than
-       BFGS (on 4 restarts of a 256-point subset of the benchmark data: 7–18
-       against 15–29). The **last stage** on all data in float64 (when
+       BFGS. The **last stage** on all data in float64 (when
        there was an earlier one) is ``optimistix`` BFGS in coordinates whitened by the
        Fisher estimate at its start: near the optimum it walks the flat ridges
        of the likelihood (RQ ``α`` and a bias variance trading off) much faster
        than Fisher scoring, whose curvature model stays fixed to the expected
        Hessian, and each step costs one exact evaluation instead of two
-       Choleskys (``benchmarks/bench_gp.py``, n = 1000: to within 1e-5 of the
-       optimum in 24 steps and 2.4 s against 61 steps and 9.8 s).
+       Choleskys (timings: ``benchmarks/RESULTS.md``).
        In float32 its curvature updates drown in rounding (it ran to
        ``max_steps``), so a float32 last stage stays with Fisher scoring.
        ``method="bfgs"`` uses that whitened BFGS in every stage.
     4. ``explore_in_float32=True`` (default) runs the subset stages in float32
        when the data are float64, then one float64 stage on all data, which
        starts from the last subset's optimum and polishes. (A float32 stage on
-       all data before it cost more than it saved: at n = 2000 on the benchmark,
-       61 float32 steps + 7 float64 steps, 7.4 s, against 5 float64 steps, 4.1 s,
-       to the same optimum.) With a single subset stage that is all data, as for
+       all data before it cost more than it saved: ``benchmarks/RESULTS.md``.) With a single subset stage that is all data, as for
        ``n ≤ subset_size``, that float32 stage stays.
        A float32 stage that fails at every start (``K`` not positive definite
        in float32) is rerun in float64.
@@ -778,9 +743,9 @@ def fit(
     steps are short and a parameter may stop short of its limit, with an LML
     typically within ~1e-2 of the supremum.
 
-    Returns a :class:`FittedGP`; ``result`` says whether the last stage
-    converged (a failed fit is a value); ``throw=True`` raises
-    ``RuntimeError`` instead. The whole fit is seeded by ``key``.
+    Returns a :class:`FittedGP`; ``result`` (a :class:`jaxgaze.results.RESULTS`)
+    says whether the last stage converged (a failed fit is a value);
+    ``throw=True`` raises :class:`jaxgaze.results.FitError` instead. The whole fit is seeded by ``key``.
     ``progress=True`` shows a tqdm bar on stderr that counts exact evaluations
     (one per optimiser step) and names the stage running, with the best log
     likelihood of each finished stage.
@@ -829,7 +794,7 @@ def fit(
     theta_data, unravel = ravel_pytree(template)
     p = theta_data.shape[0]
     if p == 0:
-        return _finish(kernel, X, y, jitter, FitResult.successful, jnp.zeros((0,), dtype), (), throw)
+        return _finish(kernel, X, y, jitter, RESULTS.successful, jnp.zeros((0,), dtype), (), throw)
     starts = [theta_data]
     if num_restarts >= 2:
         starts.append(ravel_pytree(eqx.partition(kernel, spec)[0])[0])
@@ -844,7 +809,7 @@ def fit(
     try:
         stages = []
         theta = None
-        result = FitResult.nonfinite
+        result = RESULTS.nonfinite
         restart_lml = None
         for i, (m, dt) in enumerate(plan):
             bar.set_description_str(f"GP fit, stage {i + 1}/{len(plan)} ({m} points, {jnp.dtype(dt).name})")
@@ -875,18 +840,18 @@ def fit(
             finite = np.isfinite(values)
             if not finite.any():
                 if theta is None:
-                    return _finish(start_kernel, X, y, jitter, FitResult.nonfinite, restart_lml, tuple(stages), throw)
-                result = FitResult.optimiser_failed
+                    return _finish(start_kernel, X, y, jitter, RESULTS.nonfinite, restart_lml, tuple(stages), throw)
+                result = RESULTS.optimiser_failed
                 continue
             best = int(np.argmin(np.where(finite, values, np.inf)))
             bar.set_postfix_str(f"log likelihood {-values[best]:.4f} on {m} points")
             theta = out.theta[best].astype(dtype)
             if bool(out.successful[best]):
-                result = FitResult.successful
+                result = RESULTS.successful
             elif bool(out.max_steps[best]):
-                result = FitResult.max_steps_reached
+                result = RESULTS.max_steps_reached
             else:
-                result = FitResult.optimiser_failed
+                result = RESULTS.optimiser_failed
     finally:
         _progress_bar = None
         bar.close()
@@ -897,8 +862,8 @@ def fit(
 
 def _finish(kernel, X, y, jitter, result, restart_lml, stages, throw) -> FittedGP:
     L, alpha, value, j = _factor(kernel, X, y, jitter)
-    if not np.all(np.isfinite(np.asarray(L))) and result != FitResult.nonfinite:
-        result = FitResult.not_positive_definite
+    if not np.all(np.isfinite(np.asarray(L))) and not bool(result == RESULTS.nonfinite):
+        result = RESULTS.not_positive_definite
     fitted = FittedGP(
         kernel=kernel,
         log_marginal_likelihood=value,
@@ -911,6 +876,16 @@ def _finish(kernel, X, y, jitter, result, restart_lml, stages, throw) -> FittedG
         restart_log_marginal_likelihoods=restart_lml,
         stages=stages,
     )
-    if throw and result != FitResult.successful:
-        raise RuntimeError(fitted.message)
+    if throw:
+        throw_if_failed(None, result, _context(fitted.jitter))
     return fitted
+
+
+def _context(jitter: float) -> str:
+    return f"fit (jitter {jitter:.3g})"
+
+
+def _message(result: RESULTS, jitter: float) -> str:
+    if bool(result == RESULTS.not_positive_definite) or bool(result == RESULTS.nonfinite):
+        return f"{_context(jitter)}: {RESULTS[result]}"
+    return f"fit: {RESULTS[result]}"

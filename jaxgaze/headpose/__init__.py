@@ -1,6 +1,21 @@
 """Gaze direction and target depth from head pose (Yücel et al. 2013, Sec. V).
+
+Where each equation and section lives:
+
+| equation or section | function | file |
+|---|---|---|
+| T-CYB Sec. V: the input, the tracked head pose | ``head_pose_features`` | ``headpose/features.py`` |
+| T-CYB Sec. V, eq. 6–13: the ``f1`` (direction) and ``f2`` (depth) GPs | ``fit_gaze_regression``, ``GazeRegression.predict`` | ``headpose/regression.py`` |
+| T-CYB Sec. VII, CogSci: the neural-network baseline | ``fit_mlp``; ``fit_gaze_regression_nn`` | ``headpose/nn.py``; ``headpose/regression.py`` |
+| T-CYB Sec. VI, Fig. 9: the target point | ``target_point``, ``reaches_row`` | ``headpose/target.py`` |
+| T-CYB Sec. VI: pooling over windows | ``pool``, ``pool_labels`` | ``headpose/target.py`` |
+| T-CYB eq. 14: ``Q1`` | ``q1`` | ``headpose/target.py`` |
+| T-CYB eq. 15: ``Q2`` | ``q2`` | ``headpose/target.py`` |
+| CogSci Q1, Q2 and Fig. 5 (CMC) | ``mean_angular_deviation``, ``cone_rates``, ``disk_rates``, ``cmc_curve`` | ``headpose/target.py`` |
+| self- and cross-referencing splits | ``self_referencing_splits``, ``cross_referencing_splits`` | ``headpose/target.py`` |
 """
 
+from jaxgaze.headpose.features import head_pose_features
 from jaxgaze.headpose.regression import (
     Scaling,
     GazePrediction,
@@ -45,6 +60,7 @@ from jaxgaze.headpose.target import (
 )
 
 __all__ = [
+    "head_pose_features",
     "Scaling",
     "GazePrediction",
     "GazeRegression",

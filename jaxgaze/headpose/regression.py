@@ -28,9 +28,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from jaxgaze.gp.exact import FitResult, FittedGP, fit
+from jaxgaze.gp.exact import FittedGP, fit
 from jaxgaze.gp.kernels import gaze_direction_kernel, target_depth_kernel
 from jaxgaze.headpose.nn import MLPFit, fit_mlp
+from jaxgaze.results import RESULTS
 
 __all__ = ["Scaling", "GazePrediction", "GazeRegression", "NNGazeRegression", "fit_gaze_regression",
            "fit_gaze_regression_nn"]
@@ -97,7 +98,7 @@ class GazeRegression(NamedTuple):
 
     @property
     def converged(self) -> bool:
-        return self.direction_gp.result == FitResult.successful and self.depth_gp.result == FitResult.successful
+        return bool(self.direction_gp.result == RESULTS.successful) and bool(self.depth_gp.result == RESULTS.successful)
 
     def standardised(self, features):
         X = np.asarray(features)
@@ -128,7 +129,7 @@ def fit_gaze_regression(
 ) -> GazeRegression:
     """Fit the ``f1`` (direction) and ``f2`` (depth) GPs by type-II maximum likelihood.
 
-    ``features`` are head poses per frame (e.g. :func:`jaxgaze.simulate.tabletop.head_pose_features`:
+    ``features`` are head poses per frame (e.g. :func:`jaxgaze.headpose.features.head_pose_features`:
     pitch, yaw, roll in radians and the head position in metres); ``direction``
     the image-plane gaze angles (radians) and ``depth`` the target rows (px).
     ``ard`` gives the RQ and arc-sine kernels one lengthscale per feature;

@@ -1,13 +1,53 @@
-"""Every file format jaxgaze reads or writes; one error type, :class:`InputFileError`.
+"""Every file format jaxgaze reads or writes. Readers raise one error type,
+:class:`InputFileError` (``path, line N: what``; per-format subclasses such as
+:class:`PoseFileError`), and every CSV goes through :func:`read_csv_table`; writers
+are atomic (:func:`atomic_path`).
 """
 
 from jaxgaze.io.text import (
     InputFileError,
+    CsvRow,
+    CsvTable,
     atomic_path,
     read_text,
     read_lines,
+    read_csv_table,
     parse_number,
+    format_float,
     header_problem,
+)
+from jaxgaze.io.rays import (
+    CSV_COLUMNS,
+    DEFAULT_BANDWIDTH,
+    RayRecording,
+    read_rays_csv,
+    write_rays_csv,
+    stack_rays,
+)
+from jaxgaze.io.concurrences import (
+    OUTPUT_COLUMNS,
+    write_concurrences_csv,
+)
+from jaxgaze.io.poses import (
+    PoseFileError,
+    POSE_CSV_COLUMNS,
+    CAMERA_POSE_COLUMNS,
+    WearerPoses,
+    check_quaternion,
+    read_colmap_images,
+    write_colmap_images,
+    read_pose_csv,
+    write_pose_csv,
+    read_poses,
+    read_camera_poses_csv,
+    write_camera_poses_csv,
+)
+from jaxgaze.io.calibration import (
+    CALIBRATION_KEYS,
+    WearerCalibration,
+    read_calibration_json,
+    write_calibration_json,
+    calibrated_rays,
 )
 from jaxgaze.io.openface import (
     OPENFACE_COLUMNS,
@@ -21,6 +61,28 @@ from jaxgaze.io.speech import (
     read_rttm,
     read_segments_csv,
 )
+from jaxgaze.io.gaze import (
+    GAZE_COLUMNS,
+    TARGET_COLUMNS,
+    GazeFileError,
+    GazeTrack,
+    is_openface_csv,
+    read_gaze,
+    read_gaze_csv,
+    read_openface_gaze,
+    read_targets_csv,
+    parse_point,
+)
+from jaxgaze.io.bias_report import (
+    BIAS_JSON_FORMAT,
+    BIAS_UNITS,
+    bias_record,
+    write_bias_report,
+)
+from jaxgaze.io.attend import (
+    ATTEND_COLUMNS,
+    write_attend_csv,
+)
 from jaxgaze.io.models import (
     FORMAT,
     VERSION,
@@ -33,6 +95,8 @@ from jaxgaze.io.models import (
     save_gaze_regression,
     load_gaze_regression,
     read_model_metadata,
+    metadata_number,
+    metadata_image_size,
 )
 from jaxgaze.io.video import (
     IMAGE_EXTENSIONS,
@@ -54,11 +118,40 @@ from jaxgaze.io.photos import (
 
 __all__ = [
     "InputFileError",
+    "CsvRow",
+    "CsvTable",
     "atomic_path",
     "read_text",
     "read_lines",
+    "read_csv_table",
     "parse_number",
+    "format_float",
     "header_problem",
+    "CSV_COLUMNS",
+    "DEFAULT_BANDWIDTH",
+    "RayRecording",
+    "read_rays_csv",
+    "write_rays_csv",
+    "stack_rays",
+    "OUTPUT_COLUMNS",
+    "write_concurrences_csv",
+    "PoseFileError",
+    "POSE_CSV_COLUMNS",
+    "CAMERA_POSE_COLUMNS",
+    "WearerPoses",
+    "check_quaternion",
+    "read_colmap_images",
+    "write_colmap_images",
+    "read_pose_csv",
+    "write_pose_csv",
+    "read_poses",
+    "read_camera_poses_csv",
+    "write_camera_poses_csv",
+    "CALIBRATION_KEYS",
+    "WearerCalibration",
+    "read_calibration_json",
+    "write_calibration_json",
+    "calibrated_rays",
     "OPENFACE_COLUMNS",
     "R_OPENFACE_MODEL_FROM_HEAD",
     "OpenFaceFileError",
@@ -67,6 +160,22 @@ __all__ = [
     "SpeechFileError",
     "read_rttm",
     "read_segments_csv",
+    "GAZE_COLUMNS",
+    "TARGET_COLUMNS",
+    "GazeFileError",
+    "GazeTrack",
+    "is_openface_csv",
+    "read_gaze",
+    "read_gaze_csv",
+    "read_openface_gaze",
+    "read_targets_csv",
+    "parse_point",
+    "BIAS_JSON_FORMAT",
+    "BIAS_UNITS",
+    "bias_record",
+    "write_bias_report",
+    "ATTEND_COLUMNS",
+    "write_attend_csv",
     "FORMAT",
     "VERSION",
     "KERNEL_TYPES",
@@ -78,6 +187,8 @@ __all__ = [
     "save_gaze_regression",
     "load_gaze_regression",
     "read_model_metadata",
+    "metadata_number",
+    "metadata_image_size",
     "IMAGE_EXTENSIONS",
     "VIDEO_CODECS",
     "VideoFileError",

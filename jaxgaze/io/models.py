@@ -57,7 +57,8 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgaze.gp.exact import FitResult, FittedGP, _finish
+from jaxgaze.gp.exact import FittedGP, _finish
+from jaxgaze import results
 from jaxgaze.gp.kernels import (
     RBF,
     ArcSine,
@@ -76,7 +77,7 @@ from jaxgaze.io.text import InputFileError, atomic_path, read_text
 
 __all__ = ["FORMAT", "VERSION", "KERNEL_TYPES", "ModelFileError", "register_kernel", "kernel_to_json",
            "kernel_from_json", "regression_to_json", "save_gaze_regression", "load_gaze_regression",
-           "read_model_metadata"]
+           "read_model_metadata", "metadata_number", "metadata_image_size"]
 
 FORMAT = "jaxgaze.gaze_regression"
 VERSION = 1
@@ -236,10 +237,10 @@ class _Reader:
         if jitter < 0:
             self.fail(f"{where}.jitter must be non-negative, got {jitter!r}")
         result_name = self.get(data, "result", where)
-        if result_name not in FitResult.__members__:
-            self.fail(f"{where}.result must be one of " + ", ".join(FitResult.__members__)
+        if result_name not in results.NAMES:
+            self.fail(f"{where}.result must be one of " + ", ".join(results.NAMES)
                       + f", got {json.dumps(result_name)}")
-        result = FitResult[result_name]
+        result = results.from_name(result_name)
         restarts = data.get("restart_log_marginal_likelihoods", [])
         stages = data.get("stages", [])
         if not isinstance(restarts, list) or not isinstance(stages, list):
@@ -254,7 +255,7 @@ class _Reader:
         # compiled factorisation serves every jitter value.
         fitted = _finish(kernel, Xj, yj, jnp.asarray(jitter, self.dtype), result,
                          jnp.asarray(restart_values, self.dtype), stage_tuples, False)
-        if result in (FitResult.successful, FitResult.max_steps_reached) and not np.all(
+        if bool((result == results.RESULTS.successful) | (result == results.RESULTS.max_steps_reached)) and not np.all(
                 np.isfinite(np.asarray(fitted.cholesky))):
             self.fail(f"{where}: the kernel matrix is not positive definite with the saved kernel and jitter")
         value = fitted.log_marginal_likelihood
@@ -338,7 +339,7 @@ def _gp_to_json(gp: FittedGP) -> dict:
         "X": np.asarray(gp.X, dtype=np.float64).tolist(),
         "y": np.asarray(gp.y, dtype=np.float64).tolist(),
         "jitter": float(gp.jitter),
-        "result": FitResult(int(gp.result)).name,
+        "result": results.name(gp.result),
         "log_marginal_likelihood": _finite_or_none(gp.log_marginal_likelihood),
         "restart_log_marginal_likelihoods": [_finite_or_none(v) for v in
                                              np.asarray(gp.restart_log_marginal_likelihoods).ravel()],
@@ -422,7 +423,7 @@ def save_gaze_regression(path, regression, *, metadata: dict | None = None) -> N
 
 
 def _read_document(path: str) -> dict:
-    text = read_text(path, ModelFileError, "model file")
+    text = read_text(path, ModelFileError, "model")
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as error:
@@ -447,6 +448,34 @@ def read_model_metadata(path) -> dict:
     if not isinstance(metadata, dict):
         raise ModelFileError("'metadata' must be a JSON object", path)
     return metadata
+
+
+def metadata_number(metadata: dict, key: str, path, *, integer: bool = False):
+    """``metadata[key]`` checked as a positive number (or integer), or ``None`` when absent or null;
+    :class:`ModelFileError` naming ``path`` otherwise."""
+    value = metadata.get(key)
+    if value is None:
+        return None
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+    if integer:
+        ok = ok and float(value).is_integer()
+    if not ok:
+        kind = "positive integer" if integer else "positive number"
+        raise ModelFileError(f"model metadata '{key}' must be a {kind}, got {json.dumps(value)}", path)
+    return int(value) if integer else float(value)
+
+
+def metadata_image_size(metadata: dict, path):
+    """``metadata["image_size"]`` as ``(width, height)`` pixels, or ``None`` when absent;
+    :class:`ModelFileError` naming ``path`` otherwise."""
+    value = metadata.get("image_size")
+    if value is None:
+        return None
+    if not (isinstance(value, list) and len(value) == 2
+            and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value)):
+        raise ModelFileError(f"model metadata 'image_size' must be [width, height] in pixels, got "
+                             f"{json.dumps(value)}", path)
+    return int(value[0]), int(value[1])
 
 
 def load_gaze_regression(path, *, with_metadata: bool = False):

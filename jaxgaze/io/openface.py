@@ -1,7 +1,6 @@
-"""Input readers for the speaker-prior gaze bias (Siegfried, Yu & Odobez, ICMI 2017,
-"Towards the use of social interaction conventions as prior for gaze model
-adaptation"; ``METHODS.md`` §3): head pose and gaze from OpenFace 2, and who
-speaks when (RTTM or a CSV of segments).
+"""Head pose and gaze from OpenFace 2, an input of the speaker-prior gaze bias (Siegfried, Yu &
+Odobez, ICMI 2017, "Towards the use of social interaction conventions as prior for gaze model
+adaptation"; ``METHODS.md`` §3; who speaks when is :mod:`jaxgaze.io.speech`).
 
 Conventions (see ``docs/conventions.md``, "OpenFace and speaking status"):
 
@@ -19,9 +18,9 @@ Conventions (see ``docs/conventions.md``, "OpenFace and speaking status"):
   where ``g`` is the mean of the two eyes' gaze vectors in OpenCV camera
   coordinates (``GazeEstimation.cpp: GetGazeAngle``). So ``g ∝ (tan x, tan y, −1)``.
 
-Everything here is host-side NumPy in float64 (file reading, not jitted). File
-errors raise :class:`OpenFaceFileError` or :class:`SpeechFileError` (both
-``ValueError``) whose message starts with ``path, line N:``.
+Everything here is host-side NumPy in float64 (file reading, not jitted). The CSV is read
+by :func:`~jaxgaze.io.text.read_csv_table`; file errors raise :class:`OpenFaceFileError`
+(an :class:`~jaxgaze.io.text.InputFileError`) whose message starts with ``path, line N:``.
 """
 
 from __future__ import annotations
@@ -37,7 +36,7 @@ import numpy as np
 
 from jaxgaze.geometry import direction_to_yaw_pitch, unit
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.text import InputFileError, header_problem
+from jaxgaze.io.text import InputFileError, parse_number, read_csv_table
 
 __all__ = [
     "OPENFACE_COLUMNS",
@@ -76,11 +75,6 @@ R_OPENFACE_MODEL_FROM_HEAD = np.array(
     ]
 )
 R_OPENFACE_MODEL_FROM_HEAD.setflags(write=False)
-
-# Times are compared after rounding to 1 ns, so that decimal boundaries add up
-# exactly (1.1 + 0.3 is 1.4000000000000001 in floating point).
-_TIME_DECIMALS = 9
-
 
 class OpenFaceFileError(InputFileError):
     """An OpenFace CSV is malformed. The message starts with ``path, line N:``."""
@@ -172,35 +166,18 @@ def read_openface(path, *, min_confidence: float = 0.75, face_id: Optional[int] 
     min_confidence = float(min_confidence)
     if not math.isfinite(min_confidence):
         raise ValueError(f"read_openface: min_confidence must be finite, got {min_confidence}")
-    lines = _read_lines(path, OpenFaceFileError)
-    content = [(n + 1, ln) for n, ln in enumerate(lines) if ln.strip()]
-    if not content:
-        raise OpenFaceFileError("empty file: expected an OpenFace CSV header (frame, face_id, timestamp, ...)", path, 1)
-    header_line, header = content[0]
-    names = [cell.strip() for cell in header.split(",")]
-    problem = header_problem(names, OPENFACE_COLUMNS, hint="is this an OpenFace 2 FeatureExtraction CSV?",
-                             watched=OPENFACE_COLUMNS + ("face_id",))
-    if problem:
-        raise OpenFaceFileError(problem, path, header_line)
-    columns = [c for c in _BOOKKEEPING if c in names] + list(_GAZE_POSE)
-    index = [names.index(c) for c in columns]
-    if len(content) == 1:
-        raise OpenFaceFileError("no data rows after the header", path, header_line)
-
-    where = np.array([n for n, _ in content[1:]], dtype=np.int64)
-    values = np.empty((len(where), len(columns)), dtype=np.float64)
-    for i, (number, text) in enumerate(content[1:]):
-        cells = text.split(",")
-        if len(cells) != len(names):
-            raise OpenFaceFileError(
-                f"expected {len(names)} fields as in the header, got {len(cells)}", path, number
-            )
-        for j, k in enumerate(index):
-            cell = cells[k].strip()
-            try:
-                values[i, j] = float(cell)
-            except ValueError:
-                raise OpenFaceFileError(f"column '{columns[j]}' is not a number: {cell!r}", path, number) from None
+    table = read_csv_table(
+        path, OPENFACE_COLUMNS, ("face_id",), error=OpenFaceFileError, what="OpenFace", lower=False,
+        hint="is this an OpenFace 2 FeatureExtraction CSV?",
+        empty="empty file: expected an OpenFace CSV header (frame, face_id, timestamp, ...)",
+    )
+    columns = [c for c in _BOOKKEEPING if table.has(c)] + list(_GAZE_POSE)
+    where = np.array([row.line for row in table.rows], dtype=np.int64)
+    values = np.array(
+        [[parse_number(row.cell(c), f"column '{c}'", table.path, row.line, OpenFaceFileError, finite=False)
+          for c in columns] for row in table.rows],
+        dtype=np.float64,
+    ).reshape(len(where), len(columns))
     col = {c: values[:, j] for j, c in enumerate(columns)}
 
     def fail_at(mask, message):

@@ -1,6 +1,7 @@
-"""Camera-pose files: COLMAP's ``images.txt`` and a pose CSV (Park et al. 2012, Sec. 3.2).
+"""Camera-pose files: COLMAP's ``images.txt``, a pose CSV, and a CSV of several wearers'
+camera poses (Park et al. 2012, Sec. 3.2).
 
-Both are read into :class:`~jaxgaze.poses.CameraPoses` in **our** camera convention
+All are read into :class:`~jaxgaze.poses.CameraPoses` in **our** camera convention
 (+x forward, +y left, +z up; ``docs/conventions.md``, "Camera poses and COLMAP"):
 the COLMAP reader and writer apply :data:`~jaxgaze.geometry.R_OURS_FROM_OPENCV`.
 Quaternions are ``(w, x, y, z)``, scalar first. Errors raise :class:`PoseFileError`
@@ -12,13 +13,14 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
 import re
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import numpy as np
 
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.text import InputFileError, header_problem, parse_number, read_lines
+from jaxgaze.io.text import InputFileError, atomic_path, parse_number, read_csv_table, read_lines
 from jaxgaze.poses import CameraPoses, as_camera_poses, camera_poses, matrices_to_quaternions, quaternions_to_matrices
 
 __all__ = [
@@ -28,11 +30,20 @@ __all__ = [
     "write_colmap_images",
     "read_pose_csv",
     "write_pose_csv",
+    "read_poses",
     "check_quaternion",
+    "CAMERA_POSE_COLUMNS",
+    "WearerPoses",
+    "read_camera_poses_csv",
+    "write_camera_poses_csv",
 ]
 
 #: Required columns of :func:`read_pose_csv` (``timestamp`` is optional).
 POSE_CSV_COLUMNS = ("frame", "qw", "qx", "qy", "qz", "cx", "cy", "cz")
+
+#: Columns of a camera-pose CSV of several wearers, one row per (frame, person): ``q`` the unit
+#: quaternion (w, x, y, z) of R_camera_from_world in our camera convention, ``c`` the centre (m).
+CAMERA_POSE_COLUMNS = ("frame", "person", "qw", "qx", "qy", "qz", "cx", "cy", "cz")
 
 #: Largest accepted ``|‖q‖ − 1|`` for a quaternion read from a file.
 QUATERNION_NORM_TOLERANCE = 1e-3
@@ -43,7 +54,7 @@ class PoseFileError(InputFileError):
 
 
 def _read_text(path) -> list[str]:
-    return read_lines(path, PoseFileError)
+    return read_lines(path, PoseFileError, "pose")
 
 
 def _number(text: str, what: str, path, line: int) -> float:
@@ -166,7 +177,8 @@ def write_colmap_images(path, poses: CameraPoses, *, camera_id: int = 1) -> None
 
     The inverse of :func:`read_colmap_images`: image ``k`` (1-based) is named
     ``frame_%06d.jpg`` after its frame id, with ``camera_id`` and an empty
-    POINTS2D line. Frame ids must be ≥ 0. Timestamps are not stored.
+    POINTS2D line. Frame ids must be ≥ 0. Timestamps are not stored. The file is
+    written atomically.
     """
     poses = as_camera_poses(poses, "poses")
     frames = np.asarray(poses.frame_ids)
@@ -185,7 +197,7 @@ def write_colmap_images(path, poses: CameraPoses, *, camera_id: int = 1) -> None
     for k in range(len(frames)):
         values = " ".join(repr(float(x)) for x in (*q[k], *t[k]))
         out.write(f"{k + 1} {values} {camera_id} frame_{int(frames[k]):06d}.jpg\n\n")
-    with open(path, "w", encoding="utf-8", newline="\n") as handle:
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as handle:
         handle.write(out.getvalue())
 
 
@@ -208,62 +220,34 @@ def read_pose_csv(path) -> CameraPoses:
     a non-unit quaternion (``|‖q‖ − 1| > 1e-3``), a duplicate frame or an empty
     file.
     """
-    lines = _read_text(path)
-    # Keep line numbers: feed csv only the non-comment lines, one at a time.
-    content = [(n + 1, ln) for n, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")]
-    if not content:
-        raise PoseFileError(
-            "empty file: expected a header row with columns " + ", ".join(POSE_CSV_COLUMNS), path, 1
-        )
-    rows = []
-    for n, ln in content:
-        try:
-            rows.append((n, next(csv.reader([ln], strict=True))))
-        except csv.Error as error:
-            raise PoseFileError(f"malformed CSV: {error}", path, n) from None
-    header_line, header = rows[0]
-    names = [cell.strip().lower() for cell in header]
-    problem = header_problem(names, POSE_CSV_COLUMNS,
-                             hint="need " + ", ".join(POSE_CSV_COLUMNS) + ", optionally timestamp")
-    if problem:
-        raise PoseFileError(problem, path, header_line)
-    index = {c: names.index(c) for c in POSE_CSV_COLUMNS}
-    ts_index = names.index("timestamp") if "timestamp" in names else None
-    if len(rows) == 1:
-        raise PoseFileError("no data rows after the header", path, header_line)
-
+    table = read_csv_table(path, POSE_CSV_COLUMNS, ("timestamp",), error=PoseFileError, what="pose", comments=True)
     frames, quats, centers, stamps, where = [], [], [], [], []
-    for number, row in rows[1:]:
-        if len(row) != len(header):
-            raise PoseFileError(f"expected {len(header)} fields as in the header, got {len(row)}", path, number)
-
-        def cell(column: str, col: int) -> str:
-            text = row[col].strip()
-            if not text:
-                raise PoseFileError(f"empty cell in column '{column}'", path, number)
-            return text
-
-        frames.append(_integer(cell("frame", index["frame"]), "column 'frame'", path, number))
-        q = [_number(cell(c, index[c]), f"column '{c}'", path, number) for c in ("qw", "qx", "qy", "qz")]
-        check_quaternion(q, path, number)
-        quats.append(q)
-        centers.append([_number(cell(c, index[c]), f"column '{c}'", path, number) for c in ("cx", "cy", "cz")])
-        if ts_index is not None:
-            stamps.append(_number(cell("timestamp", ts_index), "column 'timestamp'", path, number))
-        where.append(number)
-    _check_duplicates(frames, where, path)
+    for row in table.rows:
+        frames.append(row.integer("frame"))
+        quats.append(_row_quaternion(row))
+        centers.append([row.number(c) for c in ("cx", "cy", "cz")])
+        if table.has("timestamp"):
+            stamps.append(row.number("timestamp"))
+        where.append(row.line)
+    _check_duplicates(frames, where, table.path)
     q = np.asarray(quats, dtype=np.float64)
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    return camera_poses(quaternions_to_matrices(q), centers, frames, stamps if ts_index is not None else None)
+    return camera_poses(quaternions_to_matrices(q), centers, frames, stamps if table.has("timestamp") else None)
+
+
+def _row_quaternion(row) -> list:
+    q = [row.number(c) for c in ("qw", "qx", "qy", "qz")]
+    check_quaternion(q, row.table.path, row.line)
+    return q
 
 
 def write_pose_csv(path, poses: CameraPoses) -> None:
     """Write :class:`CameraPoses` in the format of :func:`read_pose_csv` (with
-    ``timestamp`` when the poses have timestamps)."""
+    ``timestamp`` when the poses have timestamps), atomically."""
     poses = as_camera_poses(poses, "poses")
     q = matrices_to_quaternions(poses.R_camera_from_world)
     columns = list(POSE_CSV_COLUMNS) + (["timestamp"] if poses.timestamps is not None else [])
-    with open(path, "w", encoding="utf-8", newline="") as handle:
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
         writer = csv.writer(handle, lineterminator="\n")
         writer.writerow(columns)
         for k in range(poses.num_frames):
@@ -271,3 +255,80 @@ def write_pose_csv(path, poses: CameraPoses) -> None:
             if poses.timestamps is not None:
                 row.append(repr(float(poses.timestamps[k])))
             writer.writerow(row)
+
+
+def read_poses(path) -> CameraPoses:
+    """One wearer's camera poses from a COLMAP ``images.txt`` (``.txt``, :func:`read_colmap_images`)
+    or a pose CSV (``.csv``, :func:`read_pose_csv`); :class:`PoseFileError` for another extension."""
+    ext = os.path.splitext(os.fspath(path))[1].lower()
+    if ext not in (".txt", ".csv"):
+        raise PoseFileError(f"unknown pose file type '{ext}': expected a COLMAP images.txt (.txt) or a pose CSV "
+                            "(.csv)", path)
+    return read_colmap_images(path) if ext == ".txt" else read_pose_csv(path)
+
+
+# ---------------------------------------------------------------------------
+# Several wearers in one CSV
+
+
+class WearerPoses(NamedTuple):
+    """The camera poses of several wearers from one camera-pose CSV.
+
+    ``poses`` maps each person (in the order of their first row) to their
+    :class:`CameraPoses` (sorted by frame); ``lines`` maps each person to the file
+    line of each of those poses; ``path`` is the file.
+    """
+
+    poses: dict
+    lines: dict
+    path: str
+
+
+def read_camera_poses_csv(path) -> WearerPoses:
+    """Read a CSV of camera poses, one row per (frame, person), columns :data:`CAMERA_POSE_COLUMNS`.
+
+    Columns are in any order (case-insensitive); other columns are ignored, blank lines
+    skipped. ``(qw, qx, qy, qz)`` is the unit quaternion of ``R_camera_from_world`` in
+    our camera convention (+x forward, +y left, +z up), checked as by
+    :func:`read_pose_csv`; ``(cx, cy, cz)`` is the camera centre in the world (metres).
+    Raises :class:`PoseFileError` naming the file and line for a header problem, an
+    empty or non-numeric cell, NaN/inf, a non-integer frame, a non-unit quaternion or
+    a duplicate (frame, person).
+    """
+    table = read_csv_table(path, CAMERA_POSE_COLUMNS, error=PoseFileError)
+    rows: dict[str, list] = {}
+    seen: dict[tuple[int, str], int] = {}
+    for row in table.rows:
+        frame = row.integer("frame")
+        person = row.text("person")
+        q = _row_quaternion(row)
+        centre = [row.number(c) for c in ("cx", "cy", "cz")]
+        first = seen.setdefault((frame, person), row.line)
+        if first != row.line:
+            raise row.error(f"duplicate pose for frame {frame}, person '{person}' (first on line {first})")
+        rows.setdefault(person, []).append((frame, q, centre, row.line))
+    poses, lines = {}, {}
+    for person, mine in rows.items():
+        q = np.asarray([r[1] for r in mine], dtype=np.float64)
+        q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        frames = np.asarray([r[0] for r in mine], dtype=np.int64)
+        poses[person] = camera_poses(quaternions_to_matrices(q), [r[2] for r in mine], frames)
+        lines[person] = np.asarray([r[3] for r in mine], dtype=np.int64)[np.argsort(frames, kind="stable")]
+    return WearerPoses(poses, lines, table.path)
+
+
+def write_camera_poses_csv(path, poses: dict) -> None:
+    """Write ``{person: CameraPoses}`` as a camera-pose CSV (:data:`CAMERA_POSE_COLUMNS`),
+    rows sorted by frame, then in the order of ``poses``; atomically."""
+    rows = []
+    for k, (person, p) in enumerate(poses.items()):
+        p = as_camera_poses(p, f"poses[{person!r}]")
+        q = matrices_to_quaternions(p.R_camera_from_world)
+        for t in range(p.num_frames):
+            rows.append((int(p.frame_ids[t]), k, [int(p.frame_ids[t]), person, *(repr(float(x)) for x in q[t]),
+                                                 *(repr(float(x)) for x in p.centers[t])]))
+    rows.sort(key=lambda r: r[:2])
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
+        writer = csv.writer(handle, lineterminator="\n")
+        writer.writerow(CAMERA_POSE_COLUMNS)
+        writer.writerows(r[2] for r in rows)

@@ -5,7 +5,6 @@ File errors raise :class:`SpeechFileError` whose message starts with ``path, lin
 
 from __future__ import annotations
 
-import csv
 import os
 import warnings
 from typing import Optional
@@ -13,18 +12,13 @@ from typing import Optional
 import numpy as np
 
 from jaxgaze.bias.speech import TIME_DECIMALS, SpeechSegments
-from jaxgaze.io.text import InputFileError, header_problem, parse_number, read_lines
+from jaxgaze.io.text import InputFileError, parse_number, read_csv_table, read_lines
 
 __all__ = ["SpeechFileError", "read_rttm", "read_segments_csv"]
 
 
 class SpeechFileError(InputFileError):
     """An RTTM or segment CSV is malformed. The message starts with ``path, line N:``."""
-
-
-_read_lines = read_lines
-_number = parse_number
-
 
 
 def _segments(path, starts, ends, speakers, lines) -> SpeechSegments:
@@ -69,7 +63,7 @@ def read_rttm(path, *, file_id: Optional[str] = None) -> SpeechSegments:
     SPEAKER line with fewer than 8 fields, a non-numeric or non-finite onset or
     duration, a negative duration, no SPEAKER lines, or no lines for ``file_id``.
     """
-    lines = _read_lines(path, SpeechFileError)
+    lines = read_lines(path, SpeechFileError, "speech")
     if not any(ln.strip() for ln in lines):
         raise SpeechFileError(
             "empty file: expected RTTM lines "
@@ -92,8 +86,8 @@ def read_rttm(path, *, file_id: Optional[str] = None) -> SpeechSegments:
         files.append(fields[1])
         if file_id is not None and fields[1] != file_id:
             continue
-        onset = _number(fields[3], "onset", path, number, SpeechFileError)
-        duration = _number(fields[4], "duration", path, number, SpeechFileError)
+        onset = parse_number(fields[3], "onset", path, number, SpeechFileError)
+        duration = parse_number(fields[4], "duration", path, number, SpeechFileError)
         if duration < 0:
             raise SpeechFileError(f"negative duration {fields[4]}", path, number)
         starts.append(onset)
@@ -121,39 +115,16 @@ def read_segments_csv(path) -> SpeechSegments:
     missing column, no data rows, a row with the wrong number of fields, a
     non-numeric or non-finite time, ``end < start`` or an empty speaker name.
     """
-    required = ("start", "end", "speaker")
-    lines = _read_lines(path, SpeechFileError)
-    content = [(n + 1, ln) for n, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")]
-    if not content:
-        raise SpeechFileError("empty file: expected a header row with columns start, end, speaker", path, 1)
-    rows = []
-    for number, text in content:
-        try:
-            rows.append((number, next(csv.reader([text], strict=True))))
-        except csv.Error as exc:
-            raise SpeechFileError(f"malformed CSV: {exc}", path, number) from None
-    header_line, header = rows[0]
-    names = [cell.strip().lower() for cell in header]
-    problem = header_problem(names, required, hint="need start, end, speaker", watched=required)
-    if problem:
-        raise SpeechFileError(problem, path, header_line)
-    if len(rows) == 1:
-        raise SpeechFileError("no data rows after the header", path, header_line)
-    i_start, i_end, i_speaker = (names.index(c) for c in required)
+    table = read_csv_table(path, ("start", "end", "speaker"), error=SpeechFileError, what="speech", comments=True)
     starts, ends, speakers, where = [], [], [], []
-    for number, row in rows[1:]:
-        if len(row) != len(header):
-            raise SpeechFileError(f"expected {len(header)} fields as in the header, got {len(row)}", path, number)
-        start = _number(row[i_start].strip(), "column 'start'", path, number, SpeechFileError)
-        end = _number(row[i_end].strip(), "column 'end'", path, number, SpeechFileError)
-        speaker = row[i_speaker].strip()
+    for row in table.rows:
+        start, end, speaker = row.number("start"), row.number("end"), row.cell("speaker")
         if end < start:
-            raise SpeechFileError(f"end {row[i_end].strip()} is before start {row[i_start].strip()}", path, number)
+            raise row.error(f"end {row.cell('end')} is before start {row.cell('start')}")
         if not speaker:
-            raise SpeechFileError("empty speaker name", path, number)
+            raise row.error("empty speaker name")
         starts.append(start)
         ends.append(end)
         speakers.append(speaker)
-        where.append(number)
+        where.append(row.line)
     return _segments(path, starts, ends, speakers, where)
-

@@ -1,53 +1,69 @@
-"""Reading the text inputs (pose files, OpenFace CSV, speech segments): one error type, one reader;
-and :func:`atomic_path`, the one way jaxgaze writes an output file.
+"""Reading the text inputs: one error type (:class:`InputFileError`), one text reader
+(:func:`read_text`), one CSV table reader (:func:`read_csv_table`); and :func:`atomic_path`,
+the one way jaxgaze writes an output file.
 
-Every reader reports a malformed file as a ``ValueError`` whose message starts with
-``path, line N:`` (or ``path:`` when no line applies), so that the command line can
-print it as one line.
+Every reader reports a malformed file as an :class:`InputFileError` (a ``ValueError``)
+whose message is ``path, line N: what`` (or ``path: what`` when no line applies), so that
+the command line can print it as one line.
 """
 
 from __future__ import annotations
 
 import contextlib
+import csv
 import math
 import os
 import tempfile
-from typing import Optional
+from typing import NamedTuple, Optional
 
-__all__ = ["InputFileError", "atomic_path", "read_text", "read_lines", "parse_number", "header_problem"]
+__all__ = [
+    "InputFileError",
+    "CsvRow",
+    "CsvTable",
+    "atomic_path",
+    "read_text",
+    "read_lines",
+    "read_csv_table",
+    "parse_number",
+    "format_float",
+    "header_problem",
+]
 
 
 class InputFileError(ValueError):
-    """A malformed input file. The message starts with ``path, line N:``."""
+    """A malformed input file. The message is ``path, line N: what``; ``path``, ``line``
+    (or ``None``) and ``what`` (the message without the place) are attributes."""
 
     def __init__(self, message: str, path, line: Optional[int] = None):
         self.path = os.fspath(path)
         self.line = line
+        self.what = " ".join(str(message).split())  # always one line
         where = self.path if line is None else f"{self.path}, line {line}"
-        super().__init__(f"{where}: {message}")
+        super().__init__(f"{where}: {self.what}")
 
 
-def read_text(path, error: type[InputFileError] = InputFileError, what: str = "file") -> str:
+def read_text(path, error: type[InputFileError] = InputFileError, what: str = "input") -> str:
     """The contents of a UTF-8 text file (a BOM is dropped); ``error`` for a missing or
-    unreadable file or bad bytes, naming the file as ``what`` ("model file not found")."""
+    unreadable file or bad bytes, naming the file by ``what`` ("model file not found")."""
     try:
         with open(path, "rb") as handle:
             data = handle.read()
     except FileNotFoundError:
-        raise error(f"{what} not found", path) from None
+        raise error(f"{what} file not found", path) from None
     except IsADirectoryError:
-        raise error(f"is a directory, not a {what}", path) from None
+        raise error(f"{what} is a directory, not a file", path) from None
     except OSError as exc:
-        raise error(f"cannot read the {what}: {exc.strerror or exc}", path) from None
+        raise error(f"cannot read the {what} file: {exc.strerror or exc}", path) from None
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        raise error(f"not UTF-8 text: {exc.reason}", path, data[: exc.start].count(b"\n") + 1) from None
+        raise error(f"{what} is not UTF-8 text: {exc.reason} at byte {exc.start}", path,
+                    data[: exc.start].count(b"\n") + 1) from None
 
 
-def read_lines(path, error: type[InputFileError] = InputFileError) -> list[str]:
+def read_lines(path, error: type[InputFileError] = InputFileError, what: str = "input") -> list[str]:
     """The lines of a UTF-8 text file (a BOM is dropped); ``error`` for a missing file or bad bytes."""
-    return read_text(path, error).splitlines()
+    return read_text(path, error, what).splitlines()
 
 
 @contextlib.contextmanager
@@ -57,7 +73,8 @@ def atomic_path(path):
     The temporary file keeps ``path``'s extension (writers such as OpenCV's pick the
     format from it) and gets the permissions an existing ``path`` has (else the
     umask's). On any failure it is deleted and an existing ``path`` is left untouched,
-    so no half-written output is ever seen. ``OSError`` propagates.
+    so no half-written output is ever seen. ``OSError`` propagates, with ``filename``
+    set to ``path`` when it has an errno and named no file or the temporary one.
     """
     target = os.path.abspath(os.fspath(path))
     stem, ext = os.path.splitext(os.path.basename(target))
@@ -73,21 +90,32 @@ def atomic_path(path):
         os.chmod(tmp, file_mode)
         yield tmp
         os.replace(tmp, target)
-    except BaseException:
+    except BaseException as error:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(error, OSError) and error.errno is not None and error.filename in (None, tmp):
+            error.filename = os.fspath(path)
         raise
 
 
-def parse_number(text: str, what: str, path, line: int, error: type[InputFileError] = InputFileError) -> float:
-    """``float(text)``, finite, or ``error`` naming ``what`` at ``path, line``."""
+def parse_number(text: str, what: str, path, line: int, error: type[InputFileError] = InputFileError,
+                 *, finite: bool = True) -> float:
+    """``float(text)`` (finite unless ``finite=False``), or ``error`` naming ``what`` at ``path, line``."""
     try:
         value = float(text)
     except ValueError:
         raise error(f"{what} is not a number: {text!r}", path, line) from None
-    if not math.isfinite(value):
+    if finite and not math.isfinite(value):
         raise error(f"{what} is not finite: {text!r}", path, line)
     return value
+
+
+def format_float(value) -> str:
+    """The shortest text that reads back as ``value`` at its own precision (a NumPy float32
+    as float32, anything else as a Python float)."""
+    import numpy as np
+
+    return str(value) if isinstance(value, np.floating) else repr(float(value))
 
 
 def header_problem(names: list[str], required, *, hint: str, watched=None) -> Optional[str]:
@@ -106,3 +134,127 @@ def header_problem(names: list[str], required, *, hint: str, watched=None) -> Op
         return ("missing column" + ("s " if len(missing) > 1 else " ") + ", ".join(f"'{c}'" for c in missing)
                 + f" in the header ({hint})")
     return None
+
+
+# ---------------------------------------------------------------------------
+# CSV tables
+
+
+class CsvRow:
+    """One data row of a :class:`CsvTable`: its ``line`` in the file and its text ``cells``.
+
+    The accessors name the column and ``path, line N`` in their errors.
+    """
+
+    __slots__ = ("table", "line", "cells")
+
+    def __init__(self, table: "CsvTable", line: int, cells: list[str]):
+        self.table, self.line, self.cells = table, line, cells
+
+    def error(self, message: str) -> InputFileError:
+        """The table's error type at this row's line (to ``raise``)."""
+        return self.table.error(message, self.table.path, self.line)
+
+    def cell(self, column: str) -> str:
+        """The stripped text of ``column`` (possibly empty)."""
+        return self.cells[self.table.index[column]].strip()
+
+    def text(self, column: str) -> str:
+        """The stripped text of ``column``; an error if it is empty."""
+        text = self.cell(column)
+        if not text:
+            raise self.error(f"empty cell in column '{column}'")
+        return text
+
+    def number(self, column: str, *, finite: bool = True) -> float:
+        """``column`` as a float (finite unless ``finite=False``), via :func:`parse_number`."""
+        return parse_number(self.text(column), f"column '{column}'", self.table.path, self.line, self.table.error,
+                            finite=finite)
+
+    def integer(self, column: str) -> int:
+        """``column`` as an integer (``3`` or ``3.0``; not ``3.5``)."""
+        value = self.number(column)
+        if not value.is_integer():
+            raise self.error(f"column '{column}' must be an integer, got {self.cell(column)!r}")
+        return int(value)
+
+
+class CsvTable(NamedTuple):
+    """A CSV file read by :func:`read_csv_table`.
+
+    ``names`` are the header's column names (stripped, lower-case unless read with
+    ``lower=False``), ``index`` maps each required and present optional column to its
+    position, ``rows`` are the data rows (:class:`CsvRow`, blank lines skipped) and
+    ``error`` is the error type the rows raise.
+    """
+
+    path: str
+    header_line: int
+    names: tuple
+    index: dict
+    rows: tuple
+    error: type
+
+    def has(self, column: str) -> bool:
+        """Whether the header has ``column`` (a required or optional one)."""
+        return column in self.index
+
+    def fail(self, message: str, line: Optional[int] = None) -> InputFileError:
+        """The table's error type at ``line`` (default: the header's), to ``raise``."""
+        return self.error(message, self.path, self.header_line if line is None else line)
+
+
+def read_csv_table(path, required, optional=(), *, error: type[InputFileError] = InputFileError,
+                   what: str = "input", hint: Optional[str] = None, empty: Optional[str] = None,
+                   comments: bool = False, lower: bool = True, empty_at_end: bool = False) -> CsvTable:
+    """Read a CSV file with a header row into a :class:`CsvTable` of text cells.
+
+    The first non-blank line is the header (names stripped, lower-cased unless
+    ``lower=False``); it must name every ``required`` column, and no column of
+    ``required`` or ``optional`` twice (:func:`header_problem`; ``hint`` says what is
+    needed). Blank lines, and with ``comments=True`` lines starting with ``#``, are
+    skipped. Every data row must have as many fields as the header, and there must be
+    at least one. Raises ``error`` (``path, line N: what``) for a missing or unreadable
+    file (named by ``what``), bad bytes, an empty file (message ``empty``, at line 1, or
+    at the file's last line with ``empty_at_end=True``), malformed CSV, a header problem,
+    a ragged row, or no data rows.
+    """
+    path = os.fspath(path)
+    required, optional = tuple(required), tuple(optional)
+    lines = read_lines(path, error, what)
+    numbers, content = [], []
+    for n, text in enumerate(lines, start=1):
+        stripped = text.strip()
+        if stripped and not (comments and stripped.startswith("#")):
+            numbers.append(n)
+            content.append(text)
+    if not content:
+        if empty is None:
+            empty = "empty file: expected a header row with columns " + ", ".join(required)
+        raise error(empty, path, max(len(lines), 1) if empty_at_end else 1)
+    records = []
+    reader = csv.reader(content, strict=True)
+    consumed = 0
+    try:
+        for cells in reader:
+            records.append((numbers[consumed], cells))
+            consumed = reader.line_num
+    except csv.Error as exc:
+        raise error(f"malformed CSV: {exc}", path, numbers[min(consumed, len(numbers) - 1)]) from None
+    header_line, header = records[0]
+    names = tuple(cell.strip().lower() if lower else cell.strip() for cell in header)
+    if hint is None:
+        hint = "need " + ", ".join(required) + (", optionally " + ", ".join(optional) if optional else "")
+    problem = header_problem(list(names), required, hint=hint, watched=[n for n in names if n in required + optional])
+    if problem:
+        raise error(problem, path, header_line)
+    index = {c: names.index(c) for c in required + optional if c in names}
+    if len(records) == 1:
+        raise error("no data rows after the header", path, header_line)
+    table = CsvTable(path, header_line, names, index, (), error)
+    rows = []
+    for line, cells in records[1:]:
+        if len(cells) != len(header):
+            raise error(f"expected {len(header)} fields as in the header, got {len(cells)}", path, line)
+        rows.append(CsvRow(table, line, cells))
+    return table._replace(rows=tuple(rows))

@@ -44,8 +44,8 @@ Frames and metrics (Sec. 4.1, "Performance Measures"):
 
 Frame draws use one ``jax.random`` key and are vectorised over people (a random
 ranking of the allowed frames), not :func:`jaxgaze.bias.looking.select_frames`,
-which draws one person at a time and compiles a permutation per candidate count
-(≈ 0.4 s a person). The candidates are the same (:func:`candidate_frames`) and the
+which draws one person at a time and compiles a permutation per candidate count.
+The candidates are the same (:func:`candidate_frames`) and the
 draw is the same distribution: ``N`` frames uniformly without replacement. The
 Spk-Mean frames are the first 20 of the Spk-Med draw and the GT-Mean frames the
 first 20 of the GT-Med draw (common random numbers: the comparison between methods
@@ -55,8 +55,7 @@ Why the Bayes frames are thinned, not drawn at random: the estimator noise is
 correlated over about 0.1 s (lag-1 autocorrelation ≈ 0.65 at 30 fps, ≈ 0.05 at 10
 frames), and the mixture treats frames as independent. Random frames from the ~15–
 25 s of candidates land close together often enough that the posterior is too
-narrow (its 90% region covered the true bias for ~65% of people with 80 random
-frames). Taking every ``k``-th candidate, ``k ≥ bayes_spacing_s · fps`` (10 frames),
+narrow. Taking every ``k``-th candidate, ``k ≥ bayes_spacing_s · fps`` (10 frames),
 uses the whole minute with nearly independent frames: ``N ≈ 40–64`` per person,
 about twice the 20 inliers that Spk-Med averages.
 

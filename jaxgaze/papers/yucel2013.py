@@ -31,7 +31,7 @@ import numpy as np
 
 from jaxgaze.headpose import target as tg
 from jaxgaze.headpose.regression import fit_gaze_regression, fit_gaze_regression_nn
-from jaxgaze.simulate.tabletop import TabletopSession, head_pose_features
+from jaxgaze.simulate.tabletop import TabletopSession, session_features
 
 __all__ = ["GROUPS", "RegressionScores", "evaluate_split", "evaluate_regression", "format_table_i",
            "format_cogsci_table"]
@@ -72,7 +72,7 @@ class RegressionScores(NamedTuple):
 def training_data(sessions, indices, max_frames):
     """Head poses ``X (T, 3)`` and targets ``f1``, ``f2`` of the sessions ``indices``, thinned
     evenly to at most ``max_frames`` frames (``None``: all)."""
-    X = np.concatenate([np.asarray(head_pose_features(sessions[i])) for i in indices])
+    X = np.concatenate([np.asarray(session_features(sessions[i])) for i in indices])
     f1 = np.concatenate([np.asarray(sessions[i].gaze_direction_image) for i in indices])
     f2 = np.concatenate([np.asarray(sessions[i].target_depth_image) for i in indices])
     if max_frames is not None and len(X) > max_frames:
@@ -122,7 +122,7 @@ def evaluate_split(
     group_dev = {g: [] for g in GROUPS}
     for i in test:
         s = sessions[i]
-        pred = model.predict(head_pose_features(s))
+        pred = model.predict(session_features(s))
         direction, depth = np.asarray(pred.direction), np.asarray(pred.depth)
         truth = np.asarray(s.gaze_direction_image)
         points = np.asarray(tg.target_point(s.head_centre_image, direction, depth))

@@ -18,7 +18,7 @@ from tqdm.auto import tqdm
 from jaxgaze.headpose import target as tg
 from jaxgaze.papers.yucel2013 import fit_regressor, training_data
 from jaxgaze.simulate.render import render_tabletop_scene
-from jaxgaze.simulate.tabletop import TabletopSession, head_pose_features
+from jaxgaze.simulate.tabletop import TabletopSession, session_features
 from jaxgaze.vision.attend import NO_LOCATION, SIGMA_PX, attend_window, target_points_and_covariances
 from jaxgaze.vision.saliency_maps import SALIENCY_METHODS, saliency
 
@@ -27,7 +27,7 @@ __all__ = ["AttentionScores", "SessionAttention", "attend_session", "evaluate_at
 
 def _features(regression, session: TabletopSession):
     width = getattr(getattr(regression, "features", None), "mean", np.zeros(3)).shape[0]
-    return head_pose_features(session, include_position=width == 6)
+    return session_features(session, include_position=width == 6)
 
 
 class SessionAttention(NamedTuple):

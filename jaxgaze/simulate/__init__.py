@@ -30,13 +30,12 @@ from jaxgaze.simulate.tabletop import (
     PersonTraits,
     TabletopSession,
     tabletop_config,
-    head_pose_features,
+    session_features,
     project_optical_to_image,
     simulate_tabletop_sessions,
 )
 from jaxgaze.simulate.faces import (
     SimulatedFaces,
-    rotation_frontal_from_head,
     simulate_faces,
 )
 from jaxgaze.simulate.render import (
@@ -71,11 +70,10 @@ __all__ = [
     "PersonTraits",
     "TabletopSession",
     "tabletop_config",
-    "head_pose_features",
+    "session_features",
     "project_optical_to_image",
     "simulate_tabletop_sessions",
     "SimulatedFaces",
-    "rotation_frontal_from_head",
     "simulate_faces",
     "CONDITIONS",
     "RenderedScene",

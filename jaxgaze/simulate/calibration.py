@@ -54,7 +54,8 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxgaze.geometry import axis_angle_to_rotation_matrix, orthonormal_basis, unit, yaw_pitch_to_direction
-from jaxgaze.simulate.scenes import _Pool
+from jaxgaze._checks import check_key
+from jaxgaze.simulate._random import Pool
 
 __all__ = [
     "Mounting",
@@ -114,8 +115,8 @@ class CalibrationSession(NamedTuple):
         eye_center_b, direction_b: the same for B.
         eye_in_head: standard deviation ``h`` of each eye-in-head offset (radians).
         outlier_a, outlier_b: ``(T,)`` frames on which the wearer looks elsewhere.
-        true_R_camera_from_world_a, true_centers_a, true_R_camera_from_world_b,
-            true_centers_b: the poses before pose noise.
+        true_R_camera_from_world_a, true_centers_a, true_R_camera_from_world_b, true_centers_b: the poses
+            before pose noise.
         pose_noise_rotation, pose_noise_position: the pose-noise standard
             deviations (radians, metres).
         fps: frames per second.
@@ -170,7 +171,7 @@ class CalibrationSession(NamedTuple):
 # Building blocks
 
 
-def _mounting_from_pool(pool: _Pool, shape=()) -> Mounting:
+def _mounting_from_pool(pool: Pool, shape=()) -> Mounting:
     lo = jnp.array([r[0] for r in EYE_CENTER_RANGE])
     hi = jnp.array([r[1] for r in EYE_CENTER_RANGE])
     eye = lo + (hi - lo) * pool.uniform(shape + (3,))
@@ -185,7 +186,7 @@ def random_mounting(key) -> Mounting:
     (Sessions draw their mountings from their own key; this helper is for
     building a ``mounting`` argument.)
     """
-    return _mounting_from_pool(_Pool(key, 5))
+    return _mounting_from_pool(Pool(key, 5))
 
 
 def _upright_frame(forward: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
@@ -201,7 +202,7 @@ def _upright_frame(forward: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
     return jnp.stack([f, left, up], axis=-1)
 
 
-def _motion(pool: _Pool, num_frames: int, fps: float) -> Float[Array, "2 T 3"]:
+def _motion(pool: Pool, num_frames: int, fps: float) -> Float[Array, "2 T 3"]:
     """True camera centres of A and B, ``(2, T, 3)``: back and forth, side to side (Sec. 4)."""
     duration = num_frames / fps
     t = jnp.arange(num_frames) / fps
@@ -230,7 +231,7 @@ def _motion(pool: _Pool, num_frames: int, fps: float) -> Float[Array, "2 T 3"]:
     return jnp.concatenate([xy, z[..., None]], axis=-1)
 
 
-def _roll(pool: _Pool, num_frames: int, fps: float) -> Float[Array, "2 T"]:
+def _roll(pool: Pool, num_frames: int, fps: float) -> Float[Array, "2 T"]:
     t = jnp.arange(num_frames) / fps
     amp = pool.uniform((2,), 0.0, ROLL_MAX)
     period = pool.uniform((2,), 4.0, 12.0)
@@ -288,7 +289,7 @@ def _session_arrays(
     # Mounting uniforms come first so the motion is the same whether or not
     # the mounting is drawn; per-frame normals come from the same uniforms.
     per_frame = 2 * num_frames * 11
-    pool = _Pool(key, _SESSION_POOL + per_frame)
+    pool = Pool(key, _SESSION_POOL + per_frame)
     drawn = _mounting_from_pool(pool, (2,))
     pool.seek(10)
     # ``given`` is a traced flag, so drawn and given mountings share one compiled program.
@@ -332,11 +333,6 @@ def _simulate_many(keys, mounting, given, eye_in_head, rot, pos, frac, *, num_fr
 
 # ---------------------------------------------------------------------------
 # Public API
-
-
-def _check_key(key):
-    if isinstance(key, (int, np.integer)) or not hasattr(key, "shape"):
-        raise ValueError(f"key must be a jax.random key such as jax.random.key(0), got {type(key).__name__}")
 
 
 def _check_params(num_frames, eye_in_head, pose_noise_rotation, pose_noise_position, outlier_fraction, fps):
@@ -460,7 +456,7 @@ def simulate_calibration_session(
             wearer) on which the wearer looks 10°–30° away from the partner.
         fps: frames per second.
     """
-    _check_key(key)
+    check_key(key)
     num_frames, values = _check_params(
         num_frames, eye_in_head, pose_noise_rotation, pose_noise_position, outlier_fraction, fps
     )
@@ -500,7 +496,7 @@ def simulate_wearers(
     arguments as in :func:`simulate_calibration_session` (a given ``mounting``
     is shared by all sessions). One vmapped, jitted pass.
     """
-    _check_key(key)
+    check_key(key)
     if isinstance(num_wearers, bool) or not isinstance(num_wearers, (int, np.integer)) or num_wearers < 1:
         raise ValueError(f"num_wearers must be a positive integer, got {num_wearers!r}")
     num_frames, values = _check_params(

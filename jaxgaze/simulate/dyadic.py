@@ -88,19 +88,10 @@ Both: turns 1.5–8 s, gaps −0.5–1.5 s, P(look | partner speaks) = 0.57,
 P(look | partner silent) = 0.095, fixation noise 1°, noise correlation 0.1 s.
 Fixations last 0.6–3 s (interview) or 0.5–2.5 s (desk).
 
-Measured over 64 two-minute sessions at 30 fps
-(``simulate_dyadic_sessions(jax.random.key(0), 64, preset)``), interview /
-desk: P(looking | partner speaks) 0.56 / 0.57, ratio to
-P(looking | partner silent) 5.7 / 6.0; each person speaks 45% of the time.
-On looking frames the uncorrected gaze is off the partner's eyes by 11.0° /
-12.4° on average, with 42% / 32% of the frames within τ = 10°; with the true
-bias added it is off by 3.8° / 5.6° (98% / 91% within 10°). The paper's
-Baseline is 21.0° / 26.2° and its oracle-bias ``GT-Mean`` 7.4° / 10.3°
-(``Lm + GT-Mean`` 5.6° / 8.9°; Table 1): our biases are milder (a few to 15
-degrees), the residual noise is of the paper's order. The Spk selection
-(partner speaks, head within 30° of the partner) keeps 90% / 71% of the
-partner-speaking frames, of which 63% / 80% are truly looking: above the 50%
-that the LMedS estimator needs (Sec. 3.2).
+The biases are milder than the paper's (a few to 15 degrees), the residual noise
+is of the paper's order, and the Spk selection keeps more truly-looking frames
+than the 50 % that the LMedS estimator needs (Sec. 3.2); the statistics of both
+presets against the paper's Table 1 are in ``benchmarks/RESULTS.md``.
 
 All randomness comes from the ``jax.random`` key: the same key gives the same
 recording. All frames are generated in one jitted, vectorised pass (no loop
@@ -118,13 +109,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from jaxgaze._checks import check_key
 from jaxgaze.geometry import (
-    axis_angle_to_rotation_matrix,
     direction_to_yaw_pitch,
+    head_pose_to_rotation,
     unit,
+    wrap_angle,
     yaw_pitch_to_direction,
 )
-from jaxgaze.simulate.scenes import _Pool, _smooth
+from jaxgaze.simulate._random import Pool, smooth
 
 __all__ = [
     "PRESETS",
@@ -415,18 +408,6 @@ def _resolve(preset) -> DyadicConfig:
     raise ValueError(f"preset must be a preset name {PRESETS} or a DyadicConfig, got {type(preset).__name__}")
 
 
-def _check_key(key):
-    if isinstance(key, (jax.Array, np.ndarray)):
-        if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and key.shape == ():
-            return
-        if key.dtype == np.uint32 and key.shape == (2,):
-            return
-    raise ValueError(
-        "key must be a single jax.random key such as jax.random.key(0), got "
-        f"{type(key).__name__}{'' if not hasattr(key, 'shape') else f' of shape {key.shape}'}"
-    )
-
-
 def _check_timing(duration_s, fps) -> tuple[int, float]:
     fps = _finite("fps", fps, lo=0.0, lo_open=True)
     duration_s = _finite("duration_s", duration_s, lo=0.0, lo_open=True)
@@ -481,7 +462,7 @@ def _exp_kernel(time_constant_s: float, fps: float, *, unit_energy: bool) -> np.
     return w.astype(np.float32)
 
 
-def _turns(pool: _Pool, times, config: DyadicConfig, num_turns: int) -> Bool[Array, "P T"]:
+def _turns(pool: Pool, times, config: DyadicConfig, num_turns: int) -> Bool[Array, "P T"]:
     """Speaking flags ``(2, T)`` from alternating turns with gaps and overlaps."""
     dur = pool.uniform((num_turns,), *config.turn_s)
     gap = pool.uniform((num_turns,), *config.gap_s)
@@ -497,7 +478,7 @@ def _turns(pool: _Pool, times, config: DyadicConfig, num_turns: int) -> Bool[Arr
     return (in_k & (speaker[k] == people)) | (in_km1 & (speaker[km1] == people))
 
 
-def _segment_index(pool: _Pool, times, config: DyadicConfig, num_segments: int) -> Int[Array, "P T"]:
+def _segment_index(pool: Pool, times, config: DyadicConfig, num_segments: int) -> Int[Array, "P T"]:
     """Index of each person's fixation segment at every frame, ``(2, T)``."""
     dur = pool.uniform((NUM_PEOPLE, num_segments), *config.fixation_s)
     start0 = -pool.uniform((NUM_PEOPLE, 1)) * dur[:, :1]
@@ -506,22 +487,7 @@ def _segment_index(pool: _Pool, times, config: DyadicConfig, num_segments: int) 
     return jnp.clip(idx, 0, num_segments - 1)
 
 
-def _head_rotation(yaw, pitch, roll):
-    """``R_z(yaw) R_y(−pitch) R_x(roll)``: forward = ``yaw_pitch_to_direction(yaw, pitch)``."""
-    zero = jnp.zeros_like(yaw)
-    Rz = axis_angle_to_rotation_matrix(jnp.stack([zero, zero, yaw], axis=-1))
-    Ry = axis_angle_to_rotation_matrix(jnp.stack([zero, -pitch, zero], axis=-1))
-    Rx = axis_angle_to_rotation_matrix(jnp.stack([roll, zero, zero], axis=-1))
-    return Rz @ Ry @ Rx
-
-
-def _wrap(angle):
-    """Wrap to (−π, π]."""
-    wrapped = jnp.arctan2(jnp.sin(angle), jnp.cos(angle))
-    return jnp.where(wrapped <= -math.pi, wrapped + 2 * math.pi, wrapped)
-
-
-def _objects(pool: _Pool, config: DyadicConfig, eye0, forward, left) -> Float[Array, "P K 3"]:
+def _objects(pool: Pool, config: DyadicConfig, eye0, forward, left) -> Float[Array, "P K 3"]:
     """World positions of each person's ``K = 3`` objects, from their mean eye and body frame.
 
     ``eye0 (P, 3)``; ``forward``, ``left`` ``(P, 3)`` horizontal unit vectors.
@@ -555,7 +521,7 @@ def _objects(pool: _Pool, config: DyadicConfig, eye0, forward, left) -> Float[Ar
     return jnp.concatenate([near, room[:, None, :]], axis=1)
 
 
-def _normals(pool: _Pool, shape) -> Float[Array, "..."]:
+def _normals(pool: Pool, shape) -> Float[Array, "..."]:
     """Standard normals by Box–Muller from the pool's uniforms (compiles much
     faster than ``jax.random.normal``, above all under ``vmap``). The last axis must be even."""
     half = shape[:-1] + (shape[-1] // 2,)
@@ -579,7 +545,7 @@ def _session_arrays(key, *, config: DyadicConfig, num_frames: int, fps: float):
     # One jax.random call per session (each adds a threefry kernel and compile
     # time): the per-frame normals first, then blocks at fixed offsets from ``base``.
     base = P * num_frames * n_normals
-    pool = _Pool(key, base + _pool_size(n_turns, n_segments))
+    pool = Pool(key, base + _pool_size(n_turns, n_segments))
     normal = _normals(pool, (P, num_frames, n_normals))
 
     def seek(offset):
@@ -604,7 +570,7 @@ def _session_arrays(key, *, config: DyadicConfig, num_frames: int, fps: float):
     left = yaw_pitch_to_direction(body_yaw + math.pi / 2, jnp.zeros(P))
     objects = _objects(pool, config, eye0, forward, left)  # (P, K, 3)
     seek(64)
-    sway = config.body_sway_m * _smooth(pool, times, (P, 3), periods=(3.0, 15.0))  # (T, P, 3)
+    sway = config.body_sway_m * smooth(pool, times, (P, 3), periods=(3.0, 15.0))  # (T, P, 3)
     eyes = eye0[:, None, :] + jnp.transpose(sway, (1, 0, 2))  # (P, T, 3)
     targets = eyes[::-1]
     seek(64 + 3 * 3 * P * 3)
@@ -614,8 +580,8 @@ def _session_arrays(key, *, config: DyadicConfig, num_frames: int, fps: float):
     bias_mag = pool.uniform((P,), *config.bias_deg) * deg
     bias_dir = pool.uniform((P,), 0.0, 2 * math.pi)
     bias = bias_mag[:, None] * jnp.stack([jnp.cos(bias_dir), jnp.sin(bias_dir)], axis=-1)  # (P, 2)
-    head_sway = config.head_sway_deg * deg * _smooth(pool, times, (P, 2), periods=(2.0, 10.0))  # (T, P, 2)
-    roll = config.head_roll_deg * deg * _smooth(pool, times, (P,), periods=(3.0, 12.0))  # (T, P)
+    head_sway = config.head_sway_deg * deg * smooth(pool, times, (P, 2), periods=(2.0, 10.0))  # (T, P, 2)
+    roll = config.head_roll_deg * deg * smooth(pool, times, (P,), periods=(3.0, 12.0))  # (T, P)
     seek(256)
 
     # 2. Speaking turns.
@@ -652,14 +618,14 @@ def _session_arrays(key, *, config: DyadicConfig, num_frames: int, fps: float):
     # 4. Head: a fraction κ of the gaze shift from the body direction, lagged, plus noise.
     sight = unit(focus_points - eyes)
     sight_yaw, sight_pitch = direction_to_yaw_pitch(sight)
-    rel = jnp.stack([_wrap(sight_yaw - body_yaw[:, None]), sight_pitch - body_pitch[:, None]], axis=-1)
+    rel = jnp.stack([wrap_angle(sight_yaw - body_yaw[:, None]), sight_pitch - body_pitch[:, None]], axis=-1)
     head_rel = kappa[:, None, None] * rel
     lag = jnp.asarray(_exp_kernel(config.head_lag_s, fps, unit_energy=False))
     head_rel = jnp.moveaxis(_causal_filter(jnp.moveaxis(head_rel, -1, 1), lag), 1, -1)
     head_rel = head_rel + jnp.transpose(head_sway, (1, 0, 2)) + config.head_jitter_deg * deg * normal[..., 2:4]
     head_yaw = body_yaw[:, None] + head_rel[..., 0]
     head_pitch = body_pitch[:, None] + head_rel[..., 1]
-    R = _head_rotation(head_yaw, head_pitch, roll.T)  # (P, T, 3, 3)
+    R = head_pose_to_rotation(head_yaw, head_pitch, roll.T)  # (P, T, 3, 3)
 
     # 5. True gaze in the head frame.
     sight_head = jnp.einsum("ptji,ptj->pti", R, sight)  # Rᵀ · sight
@@ -674,7 +640,7 @@ def _session_arrays(key, *, config: DyadicConfig, num_frames: int, fps: float):
     corr = jnp.asarray(_exp_kernel(config.noise_corr_s, fps, unit_energy=True))
     z = jnp.moveaxis(_causal_filter(jnp.moveaxis(z, -1, 1), corr), 1, -1)
     gaze = true - bias[:, None, :] + config.noise_deg * deg * z
-    gaze = jnp.stack([_wrap(gaze[..., 0]), jnp.clip(gaze[..., 1], -math.pi / 2, math.pi / 2)], axis=-1)
+    gaze = jnp.stack([wrap_angle(gaze[..., 0]), jnp.clip(gaze[..., 1], -math.pi / 2, math.pi / 2)], axis=-1)
 
     return dict(
         speaking=speaking,
@@ -729,7 +695,7 @@ def simulate_dyadic(
         ValueError: for a bad key, preset name or configuration, or a
             non-positive / non-finite ``duration_s`` or ``fps``.
     """
-    _check_key(key)
+    check_key(key)
     config = _resolve(preset)
     num_frames, fps = _check_timing(duration_s, fps)
     arrays = _simulate_one(key, config=config, num_frames=num_frames, fps=fps)
@@ -751,7 +717,7 @@ def simulate_dyadic_sessions(
     ``(num_sessions, ...)``; ``take(i)`` returns session ``i``. Other arguments
     as in :func:`simulate_dyadic`.
     """
-    _check_key(key)
+    check_key(key)
     if isinstance(num_sessions, bool) or not isinstance(num_sessions, (int, np.integer)) or num_sessions < 1:
         raise ValueError(f"num_sessions must be a positive integer, got {num_sessions!r}")
     config = _resolve(preset)

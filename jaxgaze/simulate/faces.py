@@ -45,6 +45,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgaze._checks import check_key
 from jaxgaze.facial.face_model import R_OPTICAL_FROM_FRONTAL, Hypotheses, generic_face
 from jaxgaze.facial.spatial import fit_spatial_model
 from jaxgaze.geometry import head_pose_to_rotation
@@ -58,7 +59,6 @@ __all__ = [
     "R_OPTICAL_FROM_FRONTAL",
 
     "SimulatedFaces",
-    "rotation_frontal_from_head",
     "simulate_faces",
 ]
 
@@ -80,19 +80,6 @@ class SimulatedFaces(NamedTuple):
     face_size_px: np.ndarray  # (N,) about 2 × the projected inter-ocular distance
     hypotheses: Hypotheses  # fields (N, 4, H, ...)
 
-def _seed(key) -> np.ndarray:
-    if isinstance(key, (jax.Array, np.ndarray)):
-        if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and key.shape == ():
-            return np.asarray(jax.random.key_data(key)).ravel()
-        if key.dtype == np.uint32 and key.shape == (2,):
-            return np.asarray(key).ravel()
-    raise ValueError("key must be a single jax.random key such as jax.random.key(0)")
-
-def rotation_frontal_from_head(yaw, pitch, roll) -> np.ndarray:
-    """``R_z(yaw) R_y(−pitch) R_x(roll)`` (:func:`jaxgaze.geometry.head_pose_to_rotation`), ``(..., 3, 3)``."""
-    pose = np.stack(np.broadcast_arrays(*(np.asarray(a, float) for a in (pitch, yaw, roll))), axis=-1)
-    with jax.enable_x64(True):
-        return np.asarray(head_pose_to_rotation(jnp.asarray(pose, jnp.float64)), np.float64)
 
 def simulate_faces(
     key,
@@ -119,7 +106,7 @@ def simulate_faces(
     Raises:
         ValueError: bad key, count, view or ``num_hypotheses`` (< 1).
     """
-    seed = _seed(key)
+    seed = check_key(key)
     if isinstance(num_faces, bool) or not isinstance(num_faces, (int, np.integer)) or num_faces < 1:
         raise ValueError(f"num_faces must be a positive integer, got {num_faces!r}")
     if view not in ("frontal", "profile", "mixed"):
@@ -147,7 +134,9 @@ def simulate_faces(
     base = generic_face().points  # (5, 3)
     pts = base[None] * (1.0 + shape_sd * rng.standard_normal((n, 1, 3))) + point_sd * rng.standard_normal((n, 5, 3))
     pts[:, :2] -= pts[:, :2].mean(axis=1, keepdims=True) - base[:2].mean(axis=0)  # eye midpoint stays at origin
-    R = R_OPTICAL_FROM_FRONTAL @ rotation_frontal_from_head(yaw, pitch, roll)  # (n, 3, 3)
+    with jax.enable_x64(True):
+        R_frontal = np.asarray(head_pose_to_rotation(*(jnp.asarray(a, jnp.float64) for a in (yaw, pitch, roll))))
+    R = R_OPTICAL_FROM_FRONTAL @ R_frontal  # R_optical_from_head, (n, 3, 3)
     ipd = np.linalg.norm(pts[:, 1] - pts[:, 0], axis=-1)
     size = rng.uniform(*face_size_px, n)
     depth = FOCAL_PX * ipd / (0.5 * size)

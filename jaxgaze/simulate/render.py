@@ -30,11 +30,11 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
+from jaxgaze._checks import check_key
 from jaxgaze.simulate.tabletop import (
     IMAGE_HEIGHT,
     IMAGE_WIDTH,
     TabletopSession,
-    _check_key,
     project_optical_to_image,
 )
 from jaxgaze.vision.images import check_image
@@ -427,7 +427,7 @@ def render_tabletop_scene(session_or_boxes, *, key, condition: str = "natural", 
         raise ValueError(f"unknown condition {condition!r}; valid conditions are {', '.join(CONDITIONS)}")
     if not isinstance(clutter, (bool, np.bool_)):
         raise TypeError(f"clutter must be True or False, got {clutter!r}")
-    seed = _check_key(key)
+    seed = check_key(key)
     s_base, s_clutter, s_objects, s_condition = np.random.SeedSequence([int(x) for x in seed]).spawn(4)
     rng = np.random.default_rng(s_base)
     if isinstance(session_or_boxes, TabletopSession):

@@ -70,6 +70,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from jaxgaze.geometry import axis_angle_to_rotation_matrix, orthonormal_basis, unit
 from jaxgaze.rays import GazeRays
+from jaxgaze.simulate._random import Pool, smooth
 
 __all__ = ["PRESETS", "Scene", "SceneConfig", "scene_config", "simulate_scene", "primary_rays"]
 
@@ -214,59 +215,11 @@ class _Layout(NamedTuple):
     phase: Int[Array, "T"]
 
 
-class _Pool:
-    """Uniform random numbers drawn in **one** ``jax.random`` call and handed out in order.
-
-    Every ``jax.random`` call adds a threefry kernel to the compiled program and
-    XLA compile time grows with each; the scene layouts need a few hundred
-    numbers, so one draw keeps compilation fast. Slices are static.
-    """
-
-    def __init__(self, key, size: int):
-        self._u = jax.random.uniform(key, (size,))
-        self._next = 0
-
-    def uniform(self, shape=(), minval=0.0, maxval=1.0):
-        shape = tuple(shape)
-        n = math.prod(shape)
-        if self._next + n > self._u.shape[0]:
-            raise RuntimeError("simulate: random pool exhausted (internal error; enlarge the pool)")
-        out = self._u[self._next : self._next + n].reshape(shape)
-        self._next += n
-        return minval + (maxval - minval) * out
-
-    def seek(self, position: int):
-        """Continue from ``position`` (≥ the numbers used so far): fixed offsets per block."""
-        if position < self._next:
-            raise RuntimeError("simulate: random pool block overflow (internal error)")
-        self._next = position
-
-    def randint(self, shape, low: int, high: int):
-        """Integers uniform in ``[low, high)``."""
-        u = self.uniform(shape, float(low), float(high))
-        return jnp.clip(jnp.floor(u), low, high - 1).astype(jnp.int32)
-
-
 def _pool_size(num_frames: int) -> int:
     return 2048 + 3 * num_frames
 
 
-def _smooth(pool: _Pool, times: Float[Array, "T"], shape: tuple[int, ...], periods=(4.0, 16.0), components: int = 3):
-    """Smooth random signal in ``[−1, 1]`` of shape ``(T, *shape)``.
-
-    A sum of ``components`` sinusoids with random periods (seconds), phases and
-    amplitudes, normalised by the sum of amplitudes. Stationary and bounded.
-    """
-    full = shape + (components,)
-    period = pool.uniform(full, periods[0], periods[1])
-    phase = pool.uniform(full, 0.0, 2 * math.pi)
-    amp = pool.uniform(full, 0.5, 1.0)
-    t = times.reshape((-1,) + (1,) * len(full))
-    waves = amp * jnp.sin(2 * math.pi * t / period + phase)
-    return jnp.sum(waves, axis=-1) / jnp.sum(amp, axis=-1)
-
-
-def _staggered_phase(pool: _Pool, num_frames: int, fractions, num_people: int, stagger: int) -> Int[Array, "T N"]:
+def _staggered_phase(pool: Pool, num_frames: int, fractions, num_people: int, stagger: int) -> Int[Array, "T N"]:
     """Per-person phase index: person ``n`` enters phase ``j+1`` at frame
     ``round(fractions[j] T) + δ_nj``, ``δ_nj`` uniform in ``[−stagger, stagger]``."""
     bounds = jnp.round(jnp.asarray(fractions) * num_frames).astype(jnp.int32)
@@ -281,7 +234,7 @@ def _nominal_phase(num_frames: int, fractions) -> Int[Array, "T"]:
     return jnp.sum(jnp.arange(num_frames)[:, None] >= bounds[None], axis=-1).astype(jnp.int32)
 
 
-def _ring(pool: _Pool, center_xy, radius, count: int, jitter: float = 0.2):
+def _ring(pool: Pool, center_xy, radius, count: int, jitter: float = 0.2):
     """``count`` positions evenly around a circle with a random rotation and jitter."""
     angles = 2 * math.pi * jnp.arange(count) / count + pool.uniform((), 0.0, 2 * math.pi)
     angles = angles + pool.uniform((count,), -jitter, jitter)
@@ -300,7 +253,7 @@ def _stagger(num_frames: int) -> int:
 # Presets
 
 
-def _mocap(pool: _Pool, num_frames: int, fps: float) -> _Layout:
+def _mocap(pool: Pool, num_frames: int, fps: float) -> _Layout:
     """Park et al. Sec. 4.1: 6 people, 2 static markers, 8.3 × 17.7 × 4.3 m volume.
 
     Markers at different heights (a low one on a stand, a high one on a wall)
@@ -317,13 +270,13 @@ def _mocap(pool: _Pool, num_frames: int, fps: float) -> _Layout:
     home = jnp.array([0, 0, 0, 1, 1, 1])
     start = jnp.concatenate([_ring(pool, (0.0, 0.0), 1.0, 3), _ring(pool, (0.0, 0.0), 1.0, 3)])
     start_angle = jnp.arctan2(start[:, 1], start[:, 0])
-    angle = start_angle + 0.8 * _smooth(pool, t, (6,), periods=(8.0, 24.0))
-    radius = 3.25 + 1.25 * _smooth(pool, t, (6,), periods=(6.0, 18.0))
+    angle = start_angle + 0.8 * smooth(pool, t, (6,), periods=(8.0, 24.0))
+    radius = 3.25 + 1.25 * smooth(pool, t, (6,), periods=(6.0, 18.0))
     xy = markers[home, :2] + radius[..., None] * jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=-1)
     half = jnp.array(MOCAP_VOLUME[:2]) / 2 - 0.3
     xy = jnp.clip(xy, -half, half)
     eye = pool.uniform((6,), 1.55, 1.75)
-    z = eye + 0.02 * _smooth(pool, t, (6,), periods=(0.8, 1.6))  # walking bob
+    z = eye + 0.02 * smooth(pool, t, (6,), periods=(0.8, 1.6))  # walking bob
     origins = _with_height(xy, z)
 
     slot_len = max(1, round(10 * fps))  # one glance per 10 s
@@ -341,7 +294,7 @@ def _mocap(pool: _Pool, num_frames: int, fps: float) -> _Layout:
     return _Layout(origins, foci, focus, jnp.zeros(num_frames, jnp.int32))
 
 
-def _meeting(pool: _Pool, num_frames: int, fps: float) -> _Layout:
+def _meeting(pool: Pool, num_frames: int, fps: float) -> _Layout:
     """Park et al. Sec. 4.2, meeting: groups of 6 and 5 → presenter → groups.
 
     Seated people (eye height 1.15–1.28 m) around two tables 5.2 m apart, each
@@ -352,15 +305,15 @@ def _meeting(pool: _Pool, num_frames: int, fps: float) -> _Layout:
     t = jnp.arange(num_frames) / fps
     c1, c2 = jnp.array([-2.6, -0.3]), jnp.array([2.6, 0.4])
     xy = jnp.concatenate([_ring(pool, c1, 1.15, 6), _ring(pool, c2, 1.05, 5)])
-    xy = xy + 0.08 * _smooth(pool, t, (11, 2), periods=(3.0, 8.0))
+    xy = xy + 0.08 * smooth(pool, t, (11, 2), periods=(3.0, 8.0))
     eye = pool.uniform((11,), 1.15, 1.28)
-    z = eye + 0.02 * _smooth(pool, t, (11,), periods=(2.0, 6.0))
+    z = eye + 0.02 * smooth(pool, t, (11,), periods=(2.0, 6.0))
     origins = _with_height(xy, z)
 
-    tables = jnp.stack([c1, c2]) + 0.2 * _smooth(pool, t, (2, 2), periods=(4.0, 12.0))
+    tables = jnp.stack([c1, c2]) + 0.2 * smooth(pool, t, (2, 2), periods=(4.0, 12.0))
     tables = _with_height(tables, jnp.full((num_frames, 2), 0.8))
     presenter = jnp.stack(
-        [0.6 * _smooth(pool, t, (), periods=(5.0, 15.0)), jnp.full_like(t, 2.6), 1.65 + 0.02 * jnp.sin(t)], axis=-1
+        [0.6 * smooth(pool, t, (), periods=(5.0, 15.0)), jnp.full_like(t, 2.6), 1.65 + 0.02 * jnp.sin(t)], axis=-1
     )
     foci = jnp.concatenate([tables, presenter[:, None, :]], axis=1)
 
@@ -371,7 +324,7 @@ def _meeting(pool: _Pool, num_frames: int, fps: float) -> _Layout:
     return _Layout(origins, foci, focus, _nominal_phase(num_frames, fractions))
 
 
-def _party(pool: _Pool, num_frames: int, fps: float) -> _Layout:
+def _party(pool: Pool, num_frames: int, fps: float) -> _Layout:
     """Park et al. Sec. 4.2, party: 4 groups (3, 3, 3, 2) → all watch table tennis.
 
     Couch (3 seated around a coffee table), bar table (3 standing), table tennis
@@ -384,9 +337,9 @@ def _party(pool: _Pool, num_frames: int, fps: float) -> _Layout:
     t = jnp.arange(num_frames) / fps
     couch_c, bar_c = jnp.array([-3.0, -2.5]), jnp.array([-2.5, 2.5])
     tt_c, pool_c = jnp.array([2.5, -2.0]), jnp.array([2.8, 2.8])
-    sway = 0.1 * _smooth(pool, t, (11, 2), periods=(3.0, 9.0))
+    sway = 0.1 * smooth(pool, t, (11, 2), periods=(3.0, 9.0))
     tt_players = tt_c + jnp.array([[-1.37 - 0.7, 0.0], [1.37 + 0.7, -0.5], [1.37 + 0.7, 0.5]])
-    tt_players = tt_players + jnp.array([0.0, 0.3]) * _smooth(pool, t, (3, 1), periods=(1.0, 3.0))
+    tt_players = tt_players + jnp.array([0.0, 0.3]) * smooth(pool, t, (3, 1), periods=(1.0, 3.0))
     pool_players = pool_c + jnp.array([[0.2, -1.1], [-0.3, 1.1]])
     xy_before = jnp.concatenate(
         [
@@ -419,11 +372,11 @@ def _party(pool: _Pool, num_frames: int, fps: float) -> _Layout:
     s = jnp.clip((jnp.arange(num_frames)[:, None] - switch[None, :]) / walk[None, :], 0.0, 1.0)
     s = s * s * (3 - 2 * s)  # smoothstep
     xy = (1 - s[..., None]) * xy_before + s[..., None] * xy_after
-    z = (1 - s) * z_before + s * z_after + 0.015 * _smooth(pool, t, (11,), periods=(1.0, 4.0))
+    z = (1 - s) * z_before + s * z_after + 0.015 * smooth(pool, t, (11,), periods=(1.0, 4.0))
     origins = _with_height(xy, z)
 
-    couch_f = _with_height(couch_c + 0.15 * _smooth(pool, t, (2,)), jnp.full(num_frames, 0.95))
-    bar_f = _with_height(bar_c + 0.1 * _smooth(pool, t, (2,)), jnp.full(num_frames, 1.1))
+    couch_f = _with_height(couch_c + 0.15 * smooth(pool, t, (2,)), jnp.full(num_frames, 0.95))
+    bar_f = _with_height(bar_c + 0.1 * smooth(pool, t, (2,)), jnp.full(num_frames, 1.1))
     rally = pool.uniform((3,), 0.0, 2 * math.pi)
     ball = jnp.stack(
         [
@@ -433,7 +386,7 @@ def _party(pool: _Pool, num_frames: int, fps: float) -> _Layout:
         ],
         axis=-1,
     )
-    cue = _with_height(pool_c + jnp.array([0.6, 0.3]) * _smooth(pool, t, (2,)), jnp.full(num_frames, 0.85))
+    cue = _with_height(pool_c + jnp.array([0.6, 0.3]) * smooth(pool, t, (2,)), jnp.full(num_frames, 0.85))
     foci = jnp.stack([couch_f, bar_f, ball, cue], axis=1)
 
     table = jnp.array([[0, 0, 0, 1, 1, 1, 2, 2, 2, 3, 3], [2] * 11], jnp.int32)
@@ -441,7 +394,7 @@ def _party(pool: _Pool, num_frames: int, fps: float) -> _Layout:
     return _Layout(origins, foci, focus, _nominal_phase(num_frames, fractions))
 
 
-def _musical(pool: _Pool, num_frames: int, fps: float) -> _Layout:
+def _musical(pool: Pool, num_frames: int, fps: float) -> _Layout:
     """Park et al. Sec. 4.2, musical: 7 seated audience members, stage 8–12 m away.
 
     A row of seats 0.55 m apart (eye height 1.1–1.2 m). Two groups of actors on
@@ -452,13 +405,13 @@ def _musical(pool: _Pool, num_frames: int, fps: float) -> _Layout:
     """
     t = jnp.arange(num_frames) / fps
     x = jnp.linspace(-1.65, 1.65, 7) + pool.uniform((7,), -0.05, 0.05)
-    xy = jnp.stack([x, jnp.zeros(7)], axis=-1) + 0.05 * _smooth(pool, t, (7, 2), periods=(3.0, 9.0))
+    xy = jnp.stack([x, jnp.zeros(7)], axis=-1) + 0.05 * smooth(pool, t, (7, 2), periods=(3.0, 9.0))
     eye = pool.uniform((7,), 1.1, 1.2)
-    z = eye + 0.01 * _smooth(pool, t, (7,), periods=(2.0, 6.0))
+    z = eye + 0.01 * smooth(pool, t, (7,), periods=(2.0, 6.0))
     origins = _with_height(xy, z)
 
     groups = jnp.array([[-2.2, 10.0], [2.4, 9.0]])
-    actors = groups + jnp.array([0.6, 0.6]) * _smooth(pool, t, (2, 2), periods=(3.0, 10.0))
+    actors = groups + jnp.array([0.6, 0.6]) * smooth(pool, t, (2, 2), periods=(3.0, 10.0))
     actors = jnp.clip(actors, jnp.array([-6.0, 8.0]), jnp.array([6.0, 12.0]))
     foci = _with_height(actors, jnp.full((num_frames, 2), 2.3))
 
@@ -522,7 +475,7 @@ def _simulate_arrays(key, eye_in_head, head_noise, *, preset: str, num_frames: i
     n_people = _NUM_PEOPLE[preset]
     n_layout = _pool_size(num_frames)
     layout_key, noise_key = jax.random.split(key)
-    pool = _Pool(layout_key, n_layout)
+    pool = Pool(layout_key, n_layout)
     layout = _BUILDERS[preset](pool, num_frames, fps)
     if layout.focus.shape[1] != n_people:
         raise RuntimeError("simulate: _NUM_PEOPLE out of date (internal error)")

@@ -84,9 +84,7 @@ Groups of the CogSci paper: an object is **near** when its horizontal distance
 from the experimenter's rest eye position (along the optical axis) is below
 ``near_threshold_m`` = 0.5 m, and **central** when ``|yaw|`` of the direction
 to it in the frontal frame is below ``central_threshold`` = 0.3 rad. With the
-defaults these split the objects roughly in half (measured over 200 sessions,
-``simulate_tabletop_sessions(jax.random.key(0), num_people=50, sessions_per_person=4)``:
-49% near, 50% central).
+defaults these split the objects roughly in half (``benchmarks/RESULTS.md``).
 
 All randomness comes from the ``jax.random`` key: the key's data seed a NumPy
 ``SeedSequence`` whose children draw each person's traits and each session.
@@ -105,6 +103,10 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 from scipy.signal import lfilter
 
+from jaxgaze._checks import check_key
+from jaxgaze.geometry import direction_to_yaw_pitch, yaw_pitch_to_direction
+from jaxgaze.headpose.features import head_pose_features
+
 __all__ = [
     "IMAGE_WIDTH",
     "IMAGE_HEIGHT",
@@ -112,7 +114,7 @@ __all__ = [
     "PersonTraits",
     "TabletopSession",
     "tabletop_config",
-    "head_pose_features",
+    "session_features",
     "project_optical_to_image",
     "simulate_tabletop_sessions",
 ]
@@ -289,21 +291,16 @@ class TabletopSession(NamedTuple):
         return jnp.arange(self.num_frames) / self.fps
 
 
-def head_pose_features(session: TabletopSession, *, include_position: bool = False) -> Float[Array, "T D"]:
-    """The regression input per frame: reported ``(pitch, yaw, roll)`` (radians), ``(T, 3)``.
+def session_features(session: TabletopSession, *, include_position: bool = False) -> Float[Array, "T D"]:
+    """:func:`jaxgaze.headpose.features.head_pose_features` of a session's reported pose, ``(T, 3)``.
 
     ``include_position`` appends the head position ``(x, y, z)`` in the optical
-    frame (metres), T-CYB's full pose, ``(T, 6)``. Off by default: the head's
-    rest position differs between sessions by centimetres while it sways by
-    millimetres within one, so a regressor trained on one session extrapolates
-    badly in those columns (measured: linear test RMSE of ``f1`` 1.18 rad with
-    them, 0.19–0.34 rad without).
+    frame (metres), T-CYB's full pose, ``(T, 6)``. Off by default: a regressor
+    trained on one session extrapolates badly in those columns.
     """
     if not isinstance(session, TabletopSession):
         raise TypeError(f"session must be a TabletopSession, got {type(session).__name__}")
-    if include_position:
-        return jnp.concatenate([session.head_pose, session.head_position_optical], axis=-1)
-    return jnp.asarray(session.head_pose)
+    return head_pose_features(session.head_pose, session.head_position_optical if include_position else None)
 
 
 def project_optical_to_image(points_optical, focal_px: float) -> np.ndarray:
@@ -391,18 +388,6 @@ def _check_config(config) -> TabletopConfig:
     return TabletopConfig(**c)
 
 
-def _check_key(key):
-    if isinstance(key, (jax.Array, np.ndarray)):
-        if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and key.shape == ():
-            return np.asarray(jax.random.key_data(key)).ravel()
-        if key.dtype == np.uint32 and key.shape == (2,):
-            return np.asarray(key).ravel()
-    raise ValueError(
-        "key must be a single jax.random key such as jax.random.key(0), got "
-        f"{type(key).__name__}{'' if not hasattr(key, 'shape') else f' of shape {key.shape}'}"
-    )
-
-
 def _positive_int(name, value, *, lo=1, hi=None) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
         raise ValueError(f"{name} must be an integer, got {value!r}")
@@ -444,17 +429,11 @@ def _smooth(rng: np.random.Generator, times, count: int, periods=(2.0, 10.0), co
     return np.einsum("ck,tck->tk", amp, np.sin(2 * math.pi * times[:, None, None] / period + phase))
 
 
-def _wrap(angle):
-    return np.arctan2(np.sin(angle), np.cos(angle))
-
-
 def _yaw_pitch(d):
-    """``(yaw, pitch)`` of vectors ``(..., 3)`` in a head-style frame (x fwd, y left, z up)."""
-    return np.arctan2(d[..., 1], d[..., 0]), np.arctan2(d[..., 2], np.hypot(d[..., 0], d[..., 1]))
-
-
-def _yaw_pitch_to_direction(yaw, pitch):
-    return np.stack([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)], axis=-1)
+    """:func:`jaxgaze.geometry.direction_to_yaw_pitch` in float64 NumPy (the simulator's precision)."""
+    with jax.enable_x64(True):
+        yaw, pitch = direction_to_yaw_pitch(jnp.asarray(d, jnp.float64))
+        return np.asarray(yaw, np.float64), np.asarray(pitch, np.float64)
 
 
 def _draw_traits(rng: np.random.Generator, c: TabletopConfig) -> PersonTraits:
@@ -611,7 +590,9 @@ def _session(rng, c: TabletopConfig, traits: PersonTraits, scene: _Scene, *, per
     delta = attended - head_image
     f1 = np.arctan2(delta[:, 1], delta[:, 0])
     f2 = attended[:, 1].copy()
-    facing = _yaw_pitch_to_direction(pose[:, 1], pose[:, 0]) @ R.T  # optical frame
+    with jax.enable_x64(True):
+        forward = np.asarray(yaw_pitch_to_direction(jnp.asarray(pose[:, 1]), jnp.asarray(pose[:, 0])), np.float64)
+    facing = forward @ R.T  # optical frame
     X, Y, Z = head[:, 0], head[:, 1], head[:, 2]
     du = focal * (facing[:, 0] * Z - X * facing[:, 2]) / Z**2
     dv = focal * (facing[:, 1] * Z - Y * facing[:, 2]) / Z**2
@@ -687,7 +668,7 @@ def simulate_tabletop_sessions(
         ValueError: bad key, counts, timing or configuration; TypeError for a
             config of the wrong type.
     """
-    seed = _check_key(key)
+    seed = check_key(key)
     num_people = _positive_int("num_people", num_people, hi=10_000)
     sessions_per_person = _positive_int("sessions_per_person", sessions_per_person, hi=10_000)
     fps = _finite("fps", fps, lo=0.0, lo_open=True)

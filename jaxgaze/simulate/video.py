@@ -16,13 +16,8 @@ import numpy as np
 
 from jaxgaze.simulate.render import render_tabletop_scene
 from jaxgaze.simulate.tabletop import IMAGE_HEIGHT, IMAGE_WIDTH, TabletopSession
-from jaxgaze.vision.head_model import (
-    CylinderHead,
-    frontal_rotation,
-    pose_to_rotation,
-    render_head,
-    rotation_to_pose,
-)
+from jaxgaze.geometry import head_pose_to_rotation, rotation_to_head_pose
+from jaxgaze.vision.head_model import CylinderHead, frontal_rotation, render_head
 
 __all__ = ["VideoTruth", "render_tabletop_video"]
 
@@ -103,10 +98,9 @@ def render_tabletop_video(
 
     **Scale.** At the simulator's 320 × 240 (``scale=1``) the head is about
     ``0.15 m · 316 px / 1.5 m ≈ 32 px`` wide, too small for
-    :func:`~jaxgaze.vision.tracker.track_head`: on 6 s sessions (3 seeds, 16 lead-in frames)
-    its rotation error was 3–11° (median per session). At ``scale=2`` (640 × 480, a head of
-    about 60–64 px) it was 0.5–3° with 8 lead-in frames (max 3.7°), and the OpenCV face
-    detector finds the face in the first frame; hence the defaults.
+    :func:`~jaxgaze.vision.tracker.track_head`. At ``scale=2`` (640 × 480, a head of
+    about 60–64 px) it tracks, and the OpenCV face detector finds the face in the first
+    frame; hence the defaults (rotation errors at both scales: ``benchmarks/RESULTS.md``).
 
     Args:
         session: a :class:`~jaxgaze.simulate.tabletop.TabletopSession`.
@@ -158,13 +152,15 @@ def render_tabletop_video(
     eyes = np.asarray(session.head_position_optical, dtype=np.float64)[:total]
     if lead_in:
         # Eye contact at the first frame's position: pose 0 relative to the frontal frame there.
-        eye_contact = np.asarray(rotation_to_pose(Rf.T @ frontal_rotation(eyes[0])), dtype=np.float64)
+        yaw, pitch, roll = rotation_to_head_pose(Rf.T @ frontal_rotation(eyes[0]))
+        eye_contact = np.array([pitch, yaw, roll], dtype=np.float64)  # (pitch, yaw, roll), as the session's poses
         ramp = 0.5 - 0.5 * np.cos(np.pi * np.arange(lead_in) / lead_in)  # 0 ... < 1
         poses = np.concatenate([eye_contact + ramp[:, None] * (poses[0] - eye_contact), poses])
         eyes = np.concatenate([np.repeat(eyes[:1], lead_in, axis=0), eyes])
     # The session's head position is the eye midpoint: the front of the face at mid-height, half a head
     # depth in front of the cylinder's centre along the facing direction.
-    R_optical_from_head = Rf @ np.asarray(pose_to_rotation(poses), dtype=np.float64)
+    R_frontal_from_head = head_pose_to_rotation(yaw=poses[:, 1], pitch=poses[:, 0], roll=poses[:, 2])
+    R_optical_from_head = Rf @ np.asarray(R_frontal_from_head, dtype=np.float64)
     centres = eyes - head.half_depth_m * R_optical_from_head[:, :, 0]
 
     in_front = labels >= 0

@@ -14,6 +14,19 @@ bottom-up saliency and the attended object.
   scenes and videos with ground truth, and video input/output.
 
 Image conventions are in :mod:`jaxgaze.vision.images` and ``docs/conventions.md``.
+
+Where each equation and section lives:
+
+| equation or section | function | file |
+|---|---|---|
+| T-CYB Sec. IV: Viola–Jones face and eyes | ``detect_faces``, ``detect_eyes`` | ``vision/faces.py`` |
+| T-CYB Sec. IV: the cylindrical head model and its rendering | ``CylinderHead``, ``render_head`` | ``vision/head_model.py`` |
+| T-CYB Sec. IV, eq. 1–4: 6-DoF Lucas–Kanade tracking | ``track_head`` | ``vision/tracker.py`` |
+| T-CYB Sec. VI: target points and their covariances | ``target_points_and_covariances``, ``target_point_covariance`` | ``vision/attend.py`` |
+| Itti, Koch & Niebur 1998, Sec. 2, Fig. 2: map normalisation | ``itti_normalize`` | ``vision/saliency_maps.py`` |
+| T-CYB Sec. VI: saliency, Gaussian mask, winner-take-all with inhibition of return | ``saliency``, ``gaussian_mask``, ``winner_take_all``, ``salient_region`` | ``vision/saliency_maps.py`` |
+| T-CYB Sec. VI–VII: the attended location of one window | ``attend_window`` | ``vision/attend.py`` |
+| T-CYB Sec. IV–VI: video → tracking → regression → pooling → attention | ``attend_frames`` | ``vision/attend.py`` |
 """
 
 from jaxgaze.vision.attend import (

@@ -46,9 +46,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxgaze.geometry import head_pose_to_rotation
 from jaxgaze.headpose import target as tg
-from jaxgaze.vision.head_model import CylinderHead, pose_to_rotation
-from jaxgaze.vision.images import check_image
+from jaxgaze.vision.head_model import CylinderHead
+from jaxgaze.vision.images import check_image, iterate_frames
 from jaxgaze.vision.saliency_maps import SALIENCY_METHODS, gaussian_mask, salient_region, saliency, winner_take_all
 
 __all__ = [
@@ -328,7 +329,9 @@ def _head_centre_image(track, focal: float, size, head: CylinderHead) -> np.ndar
     """Project the front of the face on the cylinder's mid-height, ``t + R (b, 0, 0)``: the
     tracker's stand-in for the eye midpoint the regression was trained on."""
     width, height = size
-    R = track.R_optical_from_frontal @ np.asarray(pose_to_rotation(np.nan_to_num(track.pose)), np.float64)
+    pose = np.nan_to_num(track.pose)  # (pitch, yaw, roll)
+    R_frontal = head_pose_to_rotation(yaw=pose[:, 1], pitch=pose[:, 0], roll=pose[:, 2])
+    R = track.R_optical_from_frontal @ np.asarray(R_frontal, np.float64)
     front = track.translation + R[:, :, 0] * head.half_depth_m
     return np.stack([focal * front[:, 0] / front[:, 2] + width / 2, focal * front[:, 1] / front[:, 2] + height / 2], -1)
 
@@ -375,7 +378,7 @@ def attend_frames(
         raise ValueError(f"unknown saliency method {method!r}; choose one of {', '.join(SALIENCY_METHODS)}")
     if frames is None:
         raise TypeError("frames must be a sequence or iterable of images, got None")
-    from jaxgaze.vision.tracker import _iterate_frames, track_head
+    from jaxgaze.vision.tracker import track_head
 
     last: list = []  # each window's last frame
 
@@ -388,7 +391,7 @@ def attend_frames(
     total = len(frames) if hasattr(frames, "__len__") else None
     if total is not None and total < window:
         raise ValueError(f"frames has {total} frames, fewer than one window of {window}")
-    stream = tqdm(keep(_iterate_frames(frames)), total=total, desc="tracking", unit="frame", disable=not progress)
+    stream = tqdm(keep(iterate_frames(frames)), total=total, desc="tracking", unit="frame", disable=not progress)
     track = track_head(stream, focal_px=focal, initial_box=initial_box, head=head, **track_options)
     T = len(track.pose)
     n = T // window

@@ -7,8 +7,7 @@ still finds the face in low-resolution robot images (their Fig. 6). This module 
 the cascades that ship with OpenCV (``cv2.data.haarcascades``):
 
 - frontal faces: ``haarcascade_frontalface_alt2.xml`` (it found more of
-  ``skimage.data.lfw_subset``'s faces than ``..._default.xml``, 98 % vs 97 %, and
-  runs faster);
+  ``skimage.data.lfw_subset``'s faces than ``..._default.xml``);
 - profiles: ``haarcascade_profileface.xml``, which only finds faces turned towards
   the image's left (checked on ``lfw_subset``), so it is also run on the mirrored
   image for faces turned to the right;
@@ -34,7 +33,7 @@ import numpy as np
 
 from jaxgaze.vision.images import rotation_about, to_gray_uint8, warp_affine
 
-__all__ = ["EyeBox", "FaceBox", "detect_eyes", "detect_faces"]
+__all__ = ["EyeBox", "FaceBox", "detect_eyes", "detect_faces", "haar_cascade"]
 
 FACE_KINDS = ("frontal", "profile_left", "profile_right")
 
@@ -113,8 +112,9 @@ def _haarcascade_dir() -> str:
     return getattr(data, "haarcascades", "") if data is not None else ""
 
 
-def _cascade(name: str):
-    """The Haar cascade ``name`` (a key of ``_CASCADE_FILES``), loaded once per process."""
+def haar_cascade(name: str):
+    """OpenCV's Haar cascade ``name`` (``"frontal"``, ``"profile"``, ``"eye"`` or a facial-feature one
+    such as ``"mouth"``: a key of ``_CASCADE_FILES``), loaded once per process."""
     if name not in _CASCADES:
         import cv2
 
@@ -257,11 +257,11 @@ def detect_faces(
         min_size = max(1, math.ceil(min_size_px * min(sx, sy)))
         boxes = []
         if "frontal" in wanted:
-            boxes += [(*b, "frontal") for b in _run(_cascade("frontal"), big, min_size)]
+            boxes += [(*b, "frontal") for b in _run(haar_cascade("frontal"), big, min_size)]
         if "profile_left" in wanted:
-            boxes += [(*b, "profile_left") for b in _run(_cascade("profile"), big, min_size)]
+            boxes += [(*b, "profile_left") for b in _run(haar_cascade("profile"), big, min_size)]
         if "profile_right" in wanted:
-            boxes += [(*b, "profile_right") for b in _run(_cascade("profile"), big, min_size, mirrored=True)]
+            boxes += [(*b, "profile_right") for b in _run(haar_cascade("profile"), big, min_size, mirrored=True)]
         for x, y, w, h, score, kind in boxes:
             x, y, w, h = (x - pad) / sx, (y - pad) / sy, w / sx, h / sy
             cx, cy = to_image @ (x + 0.5 * w, y + 0.5 * h, 1.0)
@@ -323,7 +323,7 @@ def detect_eyes(image, face: FaceBox, *, upsample: float | None = None) -> list[
     sx, sy = new_w / (x1 - x0), new_h / (y1 - y0)
     min_size = max(1, round(fw * sx / 8))
     max_size = max(min_size, round(fw * sx / 2))
-    rects, neighbours = _cascade("eye").detectMultiScale2(
+    rects, neighbours = haar_cascade("eye").detectMultiScale2(
         region, scaleFactor=_SCALE_FACTOR, minNeighbors=_EYE_MIN_NEIGHBORS,
         minSize=(min_size, min_size), maxSize=(max_size, max_size),
     )

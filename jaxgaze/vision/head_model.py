@@ -25,7 +25,8 @@ Frames (``docs/conventions.md``; radians inside, degrees only in ``_deg`` names)
   ``R_optical_from_frontal`` in :mod:`jaxgaze.simulate.tabletop`).
 * **pose** ``(pitch, yaw, roll)`` of the head relative to the frontal frame,
   with the signs of :mod:`jaxgaze.simulate.tabletop`:
-  ``R_frontal_from_head = R_z(yaw) R_y(−pitch) R_x(roll)``; **yaw > 0 turns
+  ``R_frontal_from_head = R_z(yaw) R_y(−pitch) R_x(roll)``
+  (:func:`jaxgaze.geometry.head_pose_to_rotation`, mind the column order); **yaw > 0 turns
   the face to the person's left** (towards the image's right), **pitch > 0
   turns it up**, **roll > 0 turns about the forward axis from +y to +z** (the
   left ear goes up; the head tilts to its right, which is counter-clockwise
@@ -47,18 +48,16 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from jaxgaze.geometry import head_pose_to_rotation, rotation_to_head_pose
+from jaxgaze.geometry import head_pose_to_rotation
 from jaxgaze.vision.images import to_rgb_float
 
 __all__ = [
     "CylinderHead",
     "frontal_rotation",
     "load_face_texture",
-    "pose_to_rotation",
     "projected_width_px",
     "distance_for_width_px",
     "render_head",
-    "rotation_to_pose",
     "surface_grid",
 ]
 
@@ -111,9 +110,10 @@ def frontal_rotation(position_optical) -> np.ndarray:
     return np.stack([fwd, left, up], axis=1)
 
 
-pose_to_rotation = head_pose_to_rotation  # (pitch, yaw, roll) -> R_frontal_from_head
-rotation_to_pose = rotation_to_head_pose
-_pose_to_rotation_jit = jax.jit(head_pose_to_rotation)
+@jax.jit
+def _frontal_from_head(pose):
+    """``R_frontal_from_head`` of a ``(pitch, yaw, roll)`` pose (:func:`jaxgaze.geometry.head_pose_to_rotation`)."""
+    return head_pose_to_rotation(yaw=pose[..., 1], pitch=pose[..., 0], roll=pose[..., 2])
 
 
 # ---------------------------------------------------------------------------
@@ -257,7 +257,7 @@ def render_head(
     R_of = frontal_rotation(t) if R_optical_from_frontal is None else np.asarray(R_optical_from_frontal, np.float64)
     if R_of.shape != (3, 3) or not np.allclose(R_of @ R_of.T, np.eye(3), atol=1e-6):
         raise ValueError("R_optical_from_frontal must be a (3, 3) rotation matrix")
-    R = R_of @ np.asarray(_pose_to_rotation_jit(pose), dtype=np.float64)  # R_optical_from_head
+    R = R_of @ np.asarray(_frontal_from_head(pose), dtype=np.float64)  # R_optical_from_head
 
     tex = _face_texture_float() if texture is None else to_rgb_float(texture, "texture")
     if background is None:

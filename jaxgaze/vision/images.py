@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["check_image", "rotation_about", "to_float", "to_gray_float", "to_gray_uint8", "to_rgb_float", "warp_affine"]
+__all__ = ["check_image", "iterate_frames", "rotation_about", "to_float", "to_gray_float", "to_gray_uint8", "to_rgb_float", "warp_affine"]
 
 _ALLOWED_DTYPES = (np.uint8, np.float32, np.float64)
 
@@ -117,3 +117,21 @@ def rotation_about(centre, angle: float, new_centre=None) -> tuple[np.ndarray, n
     forward = np.hstack([R, (new_centre - R @ centre)[:, None]])
     backward = np.hstack([R.T, (centre - R.T @ new_centre)[:, None]])
     return forward, backward
+
+
+def iterate_frames(frames):
+    """An iterator over a video's frames: a sequence or iterable of images, or one ``(T, H, W[, 3])`` array.
+
+    Raises ``TypeError`` for ``None`` or a non-iterable, ``ValueError`` for a single image.
+    """
+    if frames is None:
+        raise TypeError("frames must be a sequence of images, got None")
+    if isinstance(frames, np.ndarray):
+        if frames.ndim < 3 or (frames.ndim == 3 and frames.shape[-1] == 3 and frames.shape[0] > 3):
+            raise ValueError(
+                f"frames must be a sequence of images (T, H, W) or (T, H, W, 3); got one array of shape {frames.shape}"
+            )
+    try:
+        return iter(frames)
+    except TypeError:
+        raise TypeError(f"frames must be a sequence or iterable of images, got {type(frames).__name__}") from None

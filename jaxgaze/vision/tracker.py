@@ -22,11 +22,10 @@ The default ``reference="previous"`` is the paper's dynamic template alone.
 With ``reference="first"`` each frame is then registered again against the
 **first frame's** template (the intensities at the cylinder's points in the
 initial pose, for those points visible both then and now), to bound drift.
-On the synthetic 100- and 300-frame sequences of the tests (with or without
-pixel noise) the dynamic template hardly drifts, and ``"first"`` gives the
-same rotation errors (it locks in the error of the initial box: yaw RMS
-0.47° vs 0.40°, pitch 0.11° vs 0.12°), halves the translation error (z 1.5 mm
-vs 2.6 mm) and costs about 25 % more time, so it is an option, not the default.
+On synthetic sequences the dynamic template hardly drifts, and ``"first"``
+gives the same rotation errors (it locks in the error of the initial box),
+a smaller translation error, and costs more time, so it is an option, not the
+default.
 
 Poses are ``(pitch, yaw, roll)`` of ``R_frontal_from_head`` relative to the
 initial frontal frame, signs as :mod:`jaxgaze.simulate.tabletop`: yaw > 0 to
@@ -49,15 +48,14 @@ import numpy as np
 import lineax as lx
 import optimistix as optx
 
-from jaxgaze.geometry import axis_angle_to_rotation_matrix
+from jaxgaze.geometry import axis_angle_to_rotation_matrix, rotation_to_head_pose
 from jaxgaze.vision.head_model import (
     CylinderHead,
     distance_for_width_px,
     frontal_rotation,
-    rotation_to_pose,
     surface_grid,
 )
-from jaxgaze.vision.images import check_image, to_gray_float
+from jaxgaze.vision.images import check_image, iterate_frames, to_gray_float
 
 __all__ = ["HeadTrack", "TRACKED_RANGE_DEG", "initial_head_position", "track_head"]
 
@@ -278,20 +276,6 @@ def _pyramid(gray, levels, blur_sigma):
     return tuple(out)
 
 
-def _iterate_frames(frames):
-    if frames is None:
-        raise TypeError("frames must be a sequence of images, got None")
-    if isinstance(frames, np.ndarray):
-        if frames.ndim < 3 or (frames.ndim == 3 and frames.shape[-1] == 3 and frames.shape[0] > 3):
-            raise ValueError(
-                f"frames must be a sequence of images (T, H, W) or (T, H, W, 3); got one array of shape {frames.shape}"
-            )
-    try:
-        return iter(frames)
-    except TypeError:
-        raise TypeError(f"frames must be a sequence or iterable of images, got {type(frames).__name__}") from None
-
-
 def track_head(
     frames,
     *,
@@ -365,7 +349,7 @@ def track_head(
             return jnp.zeros(points_head.shape[0], _float()), jnp.zeros(points_head.shape[0], _float())
         return _template(image, st[0], st[1], points_head, normals_head, focal_j, centre)
 
-    for index, frame in enumerate(_iterate_frames(frames)):
+    for index, frame in enumerate(iterate_frames(frames)):
         gray = to_gray_float(frame, f"frames[{index}]")
         if shape is None:
             shape = gray.shape
@@ -402,7 +386,8 @@ def track_head(
                 prev, pyr, R, t, points_head, normals_head, ref[0], ref[1], focal_j, centre,
                 max_steps=int(max_steps), use_reference=reference == "first",
             )
-            pose = np.asarray(rotation_to_pose(jnp.asarray(Rf.T, _float()) @ R), dtype=float)
+            yaw, pitch, roll = rotation_to_head_pose(jnp.asarray(Rf.T, _float()) @ R)
+            pose = np.array([pitch, yaw, roll], dtype=float)
             if np.all(np.abs(pose) <= ranges) and np.all(np.isfinite(pose)):
                 state = (R, t, Rf)
                 rows.append((pose, np.asarray(t, float), float(residual), False, bool(converged), Rf))

@@ -32,9 +32,8 @@ from jaxgaze.bias.looking import (
     looking_probability,
     select_frames,
     target_direction_head,
-    wrap_angle,
 )
-from jaxgaze.geometry import axis_angle_to_rotation_matrix
+from jaxgaze.geometry import axis_angle_to_rotation_matrix, wrap_angle
 
 DEG = math.pi / 180
 CHI2_2DOF_90 = -2 * math.log(0.1)  # 90% quantile of χ²(2)

@@ -85,7 +85,7 @@ def test_bad_points(points, message):
 
 def test_calibration_spread_propagates_to_concurrence_locations():
     """Direction draws of spread σ move the concurrence like the Laplace covariance with h = σ."""
-    from jaxgaze.calibration.posterior import propagate_to_concurrences
+    from jaxgaze.concurrence import propagate_to_concurrences
     from jaxgaze.geometry import orthonormal_basis
 
     target = np.array([0.0, 0.0, 1.2])

@@ -41,7 +41,7 @@ def _ransac_many(points, keys):
 def _posteriors(y, seed):
     """Posterior of every wearer (one batched run), started at its RANSAC estimate as the experiment does."""
     point = _ransac_many(y, jax.random.split(jax.random.key(seed), len(y)))
-    ok = np.asarray(point.result) == 0
+    ok = np.asarray(point.result == jg.RESULTS.successful)
     posteriors = jg.calibrate_cone_posterior_batch(
         y, key=jax.random.key(seed + 1), num_warmup=300, num_samples=300,
         init_eye_centers=np.where(ok[:, None], np.asarray(point.eye_center), 0.0),
@@ -67,7 +67,7 @@ def with_outliers():
 
 def test_ransac_recovers_simulated_mountings(clean):
     eye, direction, point, _ = clean
-    assert np.all(np.asarray(point.result) == 0)
+    assert np.all(np.asarray(point.result == jg.RESULTS.successful))
     angle, perpendicular = _errors(np.asarray(point.eye_center), np.asarray(point.direction), eye, direction)
     assert np.median(angle) < 2.0, angle
     assert np.median(perpendicular) < 0.04, perpendicular

@@ -10,11 +10,13 @@ import numpy as np
 import pytest
 from tests.cli.helpers import assert_failed, run_main
 
-from jaxgaze.cli import ATTEND_COLUMNS, main
+from jaxgaze.cli import main
+from jaxgaze.io.attend import ATTEND_COLUMNS
 from jaxgaze.io.models import load_gaze_regression
 from jaxgaze.headpose.regression import GazeRegression
 from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
-from jaxgaze.vision.head_model import frontal_rotation, pose_to_rotation, rotation_to_pose
+from jaxgaze.geometry import head_pose_to_rotation, rotation_to_head_pose
+from jaxgaze.vision.head_model import frontal_rotation
 from jaxgaze.io.video import read_frames, write_video
 from jaxgaze.simulate.video import render_tabletop_video
 
@@ -26,7 +28,7 @@ def fitted(tmp_path_factory):
     """``jaxgaze fit-gaze`` on 2 short simulated sessions, with a lossless demo video of a held-out session."""
     folder = tmp_path_factory.mktemp("attend")
     model, video = folder / "gp.json", folder / "demo.mkv"
-    status = main(["fit-gaze", "--output", str(model), "--seed", "0", "--people", "2", "--sessions", "1",
+    status = main(["fit-gaze", "--out", str(model), "--seed", "0", "--people", "2", "--sessions", "1",
                    "--duration", "5", "--demo-video", str(video), "--demo-frames", str(DEMO_FRAMES), "-q"])
     assert status == 0
     # The same held-out session, rendered again for its ground truth (fit-gaze's seed → keys → 3rd person).
@@ -45,8 +47,10 @@ def _rows(path):
 def _pooled_true_pose(truth, window):
     """The rendered pose relative to the first frame's eye-contact frame (what the tracker reports), pooled."""
     R0 = frontal_rotation(truth.head_position_optical[0])
-    R = truth.R_optical_from_frontal @ np.asarray(pose_to_rotation(truth.head_pose), np.float64)
-    pose = np.asarray(rotation_to_pose(R0.T @ R), np.float64)
+    p = truth.head_pose  # (pitch, yaw, roll)
+    R = truth.R_optical_from_frontal @ np.asarray(head_pose_to_rotation(yaw=p[:, 1], pitch=p[:, 0], roll=p[:, 2]), np.float64)
+    yaw, pitch, roll = rotation_to_head_pose(R0.T @ R)
+    pose = np.stack([pitch, yaw, roll], axis=-1).astype(np.float64)
     n = len(pose) // window
     return pose[: n * window].reshape(n, window, 3).mean(1)
 
@@ -69,7 +73,7 @@ def test_fit_gaze_writes_a_model_with_metadata_and_a_demo_video(fitted):
 
 def test_attend_end_to_end_on_the_rendered_video(fitted, tmp_path, capsys):
     out = tmp_path / "attend.csv"
-    status, stdout, stderr = run_main(capsys, ["attend", fitted.video, "--model", fitted.model, "--output", out,
+    status, stdout, stderr = run_main(capsys, ["attend", fitted.video, "--model", fitted.model, "--out", out,
                                                "--no-progress"])
     assert status == 0, stderr
     assert stdout == ""
@@ -128,28 +132,28 @@ def test_attend_errors(fitted, tmp_path, capsys):
     out = tmp_path / "attend.csv"
     text = tmp_path / "clip.mp4"
     text.write_text("not a video\n" * 50)
-    _fails(capsys, ["attend", text, "--model", fitted.model, "--output", out], out,
+    _fails(capsys, ["attend", text, "--model", fitted.model, "--out", out], out,
            "not a video OpenCV can read", "clip.mp4")
-    _fails(capsys, ["attend", tmp_path / "nope.mp4", "--model", fitted.model, "--output", out], out,
+    _fails(capsys, ["attend", tmp_path / "nope.mp4", "--model", fitted.model, "--out", out], out,
            "no such video file or frame folder", "nope.mp4")
-    _fails(capsys, ["attend", fitted.video, "--model", tmp_path / "none.json", "--output", out], out,
+    _fails(capsys, ["attend", fitted.video, "--model", tmp_path / "none.json", "--out", out], out,
            "model file not found", "none.json")
     bad = tmp_path / "bad.json"
     bad.write_text("{ not json")
-    _fails(capsys, ["attend", fitted.video, "--model", bad, "--output", out], out, "invalid JSON", "bad.json:1")
+    _fails(capsys, ["attend", fitted.video, "--model", bad, "--out", out], out, "invalid JSON", "bad.json:1")
     doc = json.loads(fitted.model.read_text())
     doc["metadata"] = {}
     blind = tmp_path / "blind.json"
     blind.write_text(json.dumps(doc))
     out.write_text("old")  # an existing output is kept
-    _fails(capsys, ["attend", fitted.video, "--model", blind, "--output", out], out, "--focal-px", "blind.json")
-    _fails(capsys, ["attend", fitted.video, "--model", fitted.model, "--output", out, "--max-frames", "3"], out,
+    _fails(capsys, ["attend", fitted.video, "--model", blind, "--out", out], out, "--focal-px", "blind.json")
+    _fails(capsys, ["attend", fitted.video, "--model", fitted.model, "--out", out, "--max-frames", "3"], out,
            "fewer than one window of 4")
-    _fails(capsys, ["attend", fitted.video, "--model", fitted.model, "--output", tmp_path / "no" / "a.csv"],
+    _fails(capsys, ["attend", fitted.video, "--model", fitted.model, "--out", tmp_path / "no" / "a.csv"],
            out, "directory does not exist")
     blank = tmp_path / "blank.mkv"
     write_video(blank, [np.full((120, 160, 3), 90, np.uint8)] * 4, 10)
-    _fails(capsys, ["attend", blank, "--model", fitted.model, "--output", out], out, "no face found", "blank.mkv")
+    _fails(capsys, ["attend", blank, "--model", fitted.model, "--out", out], out, "no face found", "blank.mkv")
 
 
 @pytest.mark.parametrize("argv", [
@@ -157,8 +161,8 @@ def test_attend_errors(fitted, tmp_path, capsys):
     ["attend", "v.mp4", "--model", "m.json", "--window", "0"],
     ["attend", "v.mp4", "--model", "m.json", "--method", "bogus"],
     ["attend", "v.mp4", "--model", "m.json", "--focal-px", "-3"],
-    ["fit-gaze"],  # --output is required
-    ["fit-gaze", "--output", "m.json", "--method", "svm"],
+    ["fit-gaze"],  # --out is required
+    ["fit-gaze", "--out", "m.json", "--method", "svm"],
 ])
 def test_usage_errors_exit_2(argv, capsys):
     with pytest.raises(SystemExit) as info:
@@ -169,10 +173,10 @@ def test_usage_errors_exit_2(argv, capsys):
 
 def test_fit_gaze_errors(tmp_path, capsys):
     out = tmp_path / "gp.json"
-    _fails(capsys, ["fit-gaze", "--output", out, "--demo-video", tmp_path / "demo.mov"], out, "--demo-video",
+    _fails(capsys, ["fit-gaze", "--out", out, "--demo-video", tmp_path / "demo.mov"], out, "--demo-video",
            "demo.mov")
-    _fails(capsys, ["fit-gaze", "--output", tmp_path / "no" / "gp.json"], out, "directory does not exist")
-    _fails(capsys, ["fit-gaze", "--output", out, "--duration", "0.1"], out, "fewer than 2 frames")
+    _fails(capsys, ["fit-gaze", "--out", tmp_path / "no" / "gp.json"], out, "directory does not exist")
+    _fails(capsys, ["fit-gaze", "--out", out, "--duration", "0.1"], out, "fewer than 2 frames")
 
 
 def test_fit_gaze_progress_bar_on_tty(fitted, tmp_path, capsys, monkeypatch):
@@ -192,7 +196,7 @@ def test_fit_gaze_progress_bar_on_tty(fitted, tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
     out = tmp_path / "gp.json"
     for quiet in ([], ["-q"]):
-        status, _, stderr = run_main(capsys, ["fit-gaze", "--output", out, "--people", "1", "--sessions", "1",
+        status, _, stderr = run_main(capsys, ["fit-gaze", "--out", out, "--people", "1", "--sessions", "1",
                                               "--duration", "3", *quiet])
         assert status == 0, stderr
         assert out.exists()

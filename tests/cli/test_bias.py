@@ -26,7 +26,8 @@ from tests.cli.helpers import assert_failed, run_main
 from scipy.spatial.transform import Rotation
 
 from jaxgaze.io.openface import R_OPENFACE_MODEL_FROM_HEAD
-from jaxgaze.cli import BIAS_FRAME_COLUMNS, main
+from jaxgaze.bias import BIAS_FRAME_COLUMNS
+from jaxgaze.cli import main
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
 from jaxgaze.simulate.dyadic import simulate_dyadic
 

@@ -17,7 +17,10 @@ import numpy as np
 import pytest
 from tests.cli.helpers import assert_failed, run_main
 
-from jaxgaze.cli import CAMERA_POSE_COLUMNS, CSV_COLUMNS, OUTPUT_COLUMNS, main
+from jaxgaze.cli import main
+from jaxgaze.io.concurrences import OUTPUT_COLUMNS
+from jaxgaze.io.poses import CAMERA_POSE_COLUMNS
+from jaxgaze.io.rays import CSV_COLUMNS
 from jaxgaze.geometry import rotation_matrix_to_quaternion
 from jaxgaze.io.poses import write_colmap_images, write_pose_csv
 from jaxgaze.poses import CameraPoses

@@ -15,7 +15,9 @@ import pytest
 from tests.cli.helpers import assert_failed, run_main
 
 import jaxgaze.rays
-from jaxgaze.cli import CSV_COLUMNS, OUTPUT_COLUMNS, main
+from jaxgaze.cli import main
+from jaxgaze.io.concurrences import OUTPUT_COLUMNS
+from jaxgaze.io.rays import CSV_COLUMNS
 
 # Points looked at by groups of people (world frame, metres).
 POINT_A = np.array([1.0, 0.5, 1.0])

@@ -110,12 +110,12 @@ def test_bounds_reject_modes_outside_the_scene_volume():
     rays = jg.GazeRays(origins, targets - origins, 0.02)
     assert len(jg.find_concurrences(rays).locations) == 2
     room = [[-10.0, -10.0, 0.0], [10.0, 10.0, 3.0]]
-    inside = jg.find_concurrences(rays, bounds=room)
+    inside = jg.find_concurrences(rays, jg.ConcurrenceOptions(bounds=room))
     assert len(inside.locations) == 1
     np.testing.assert_allclose(np.asarray(inside.locations[0]), [1, 4.5, 0.8], atol=1e-3)
     np.testing.assert_array_equal(np.asarray(inside.membership), [-1, -1, 0, 0])
     with pytest.raises(ValueError, match="bounds"):
-        jg.find_concurrences(rays, bounds=[[0.0, 0, 0], [1.0, -1, 1]])
+        jg.find_concurrences(rays, jg.ConcurrenceOptions(bounds=[[0.0, 0, 0], [1.0, -1, 1]]))
 
 
 def test_exclusive_support_each_ray_in_at_most_one_mode(scene_result):
@@ -127,8 +127,8 @@ def test_exclusive_support_each_ray_in_at_most_one_mode(scene_result):
 
 def test_min_rays_rule():
     rays = two_group_scene(jax.random.key(3))
-    assert jg.find_concurrences(rays, min_rays=5).locations.shape == (0, 3)
-    assert jg.find_concurrences(rays, min_rays=4).locations.shape == (2, 3)
+    assert jg.find_concurrences(rays, jg.ConcurrenceOptions(min_rays=5)).locations.shape == (0, 3)
+    assert jg.find_concurrences(rays, jg.ConcurrenceOptions(min_rays=4)).locations.shape == (2, 3)
 
 
 def test_location_is_maximum_likelihood_point_of_members(scene_result, x64):
@@ -331,7 +331,7 @@ def test_tracker_bridges_short_gaps():
 def test_bad_options_raise(scene_result, kwargs, message):
     rays, _ = scene_result
     with pytest.raises(ValueError, match=message):
-        jg.find_concurrences(rays, **kwargs)
+        jg.find_concurrences(rays, jg.ConcurrenceOptions(**kwargs))
 
 
 def test_wrong_ray_shapes_raise(scene_result):

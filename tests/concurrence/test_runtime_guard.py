@@ -26,9 +26,9 @@ pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="the audit and t
 _RECORDING = """
 import jax, numpy as np
 from jaxgaze.simulate import simulate_scene
-from jaxgaze import find_concurrences_over_frames
+from jaxgaze import ConcurrenceOptions, find_concurrences_over_frames
 scene = simulate_scene(jax.random.key(4), "meeting", num_frames=1600)
-options = dict(seed_depths=(1.0, 3.0), max_iter=60, refine_steps=16)
+options = ConcurrenceOptions(seed_depths=(1.0, 3.0), max_iter=60, refine_steps=16)
 """
 
 
@@ -48,12 +48,12 @@ def test_audit_flags_a_call_that_jaxlib_splits():
 def test_long_recording_programs_cannot_split_lapack_calls():
     """Every program of find_concurrences_over_frames, for the meeting and for a 120-person crowd."""
     calls = audit(_RECORDING + textwrap.dedent("""
-        find_concurrences_over_frames(scene.rays, **options)
+        find_concurrences_over_frames(scene.rays, options)
         rng = np.random.default_rng(0)
         eyes = rng.uniform(-5, 5, (3, 120, 3))
         crowd = jax.numpy.asarray(rng.normal(0, 0.5, (3, 120, 3)) - eyes)
         from jaxgaze import GazeRays
-        find_concurrences_over_frames(GazeRays(eyes, crowd), **options)
+        find_concurrences_over_frames(GazeRays(eyes, crowd), options)
     """))
     routines = {c.routine for c in calls}
     assert {"geqrf", "getrf", "syevd"} <= routines  # the refinement, covariance and region were audited
@@ -88,7 +88,7 @@ def test_long_recording_never_hangs(run, compilation_cache):
     """Stress: the long-recording path, three calls in a fresh process, each within a minute."""
     code = _RECORDING + textwrap.dedent("""
         for call in range(3):
-            found = find_concurrences_over_frames(scene.rays, **options)
+            found = find_concurrences_over_frames(scene.rays, options)
             print("call", call, int(np.sum(found.valid)), flush=True)
     """)
     stalled, lines = run_until_stalled(code, [], stall_s=60.0, env=compilation_cache)
@@ -139,7 +139,7 @@ def test_cli_refuses_a_chunk_above_the_bound(tmp_path, capsys, short_meeting):
     import csv
 
     import numpy as np
-    from cli_helpers import assert_failed, run_main
+    from tests.cli.helpers import assert_failed, run_main
 
     src = tmp_path / "rays.csv"
     with open(src, "w", newline="") as f:

@@ -15,8 +15,8 @@ from jaxgaze.facial.orientation import (
     head_orientation_gee_cipolla,
     orientation_gee_cipolla,
     orientation_pnp,
-    pose_to_rotation,
-    rotation_to_pose,
+    head_pose_to_optical_rotation,
+    optical_rotation_to_head_pose,
     to_gaze_rays,
 )
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
@@ -29,7 +29,7 @@ DEG = np.pi / 180
 
 def project(yaw, pitch, roll=0.0, t=T0, *, noise=0.0, rng=None, orthographic=False):
     """Local pinhole (or scaled-orthographic) projection of the generic face."""
-    R = pose_to_rotation(yaw, pitch, roll)
+    R = head_pose_to_optical_rotation(yaw, pitch, roll)
     X = generic_face().points @ R.T + t
     if orthographic:
         uv = F * X[:, :2] / t[2] + np.asarray(C)
@@ -56,16 +56,16 @@ def _frontal_poses(rng, n):
 
 
 def test_pose_signs_and_round_trip():
-    R0 = pose_to_rotation(0.0, 0.0, 0.0)
+    R0 = head_pose_to_optical_rotation(0.0, 0.0, 0.0)
     np.testing.assert_allclose(R0, R_OPTICAL_FROM_FRONTAL, atol=1e-12)
     np.testing.assert_allclose(R0[:, 0], [0, 0, -1], atol=1e-12)  # looks back at the camera
-    assert pose_to_rotation(0.3, 0, 0)[0, 0] > 0.2  # yaw > 0: face to the image right
-    assert pose_to_rotation(0, 0.3, 0)[1, 0] < -0.2  # pitch > 0: face up (image −y)
-    assert pose_to_rotation(0, 0, 0.3)[1, 1] < -0.2  # roll > 0: the left ear goes up
+    assert head_pose_to_optical_rotation(0.3, 0, 0)[0, 0] > 0.2  # yaw > 0: face to the image right
+    assert head_pose_to_optical_rotation(0, 0.3, 0)[1, 0] < -0.2  # pitch > 0: face up (image −y)
+    assert head_pose_to_optical_rotation(0, 0, 0.3)[1, 1] < -0.2  # roll > 0: the left ear goes up
     uv = project(0.4, 0.0)
     assert uv[2, 0] > 0.5 * (uv[0, 0] + uv[1, 0])  # the nose moves to the image right
     for pose in [(0.3, -0.2, 0.1), (-1.0, 0.4, -0.3), (2.0, -1.2, 0.5)]:
-        np.testing.assert_allclose(rotation_to_pose(pose_to_rotation(*pose)), pose, atol=1e-12)
+        np.testing.assert_allclose(optical_rotation_to_head_pose(head_pose_to_optical_rotation(*pose)), pose, atol=1e-12)
 
 
 # ---------------------------------------------------------------------------
@@ -187,7 +187,7 @@ def test_gaze_ray_frame_conversion():
     assert d[1] < 0 and d[2] > 0 and d[0] < 0
     np.testing.assert_allclose(np.asarray(rays.origins[0]), [T0[2], -T0[0], -T0[1]], atol=1e-4)
     # To a world frame.
-    Rw = np.asarray(pose_to_rotation(0.3, 0.1, 0.2))
+    Rw = np.asarray(head_pose_to_optical_rotation(0.3, 0.1, 0.2))
     cw = np.array([1.0, 2.0, 3.0])
     rw = to_gaze_rays([o, o], R_world_from_camera=Rw, camera_center=cw, extra_bandwidth=0.05)
     np.testing.assert_allclose(np.asarray(rw.directions[1]), Rw @ d, atol=1e-5)
@@ -338,7 +338,7 @@ def test_shape_sd_makes_intervals_cover_the_simulated_faces():
     with ``shape_sd = FACE_SHAPE_SD`` the 90 % intervals of both estimators cover
     85–97 % of the true yaw and pitch on frontal faces; without it PnP's residual-based
     σ under-covers."""
-    from jaxgaze.facial import simulate_faces
+    from jaxgaze.simulate.faces import simulate_faces
     from jaxgaze.facial.face_model import FACE_SHAPE_SD
     from jaxgaze.simulate.faces import FOCAL_PX, IMAGE_HEIGHT, IMAGE_WIDTH
 

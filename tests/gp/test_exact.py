@@ -15,6 +15,7 @@ from sklearn.gaussian_process import kernels as skk
 
 import jaxgaze.gp as gp
 from jaxgaze.gp.kernels import Kernel
+from jaxgaze.results import RESULTS
 
 JITTER = 1e-8  # ours (absolute) = sklearn's alpha
 
@@ -128,7 +129,7 @@ def gp_sample():
 
 def test_fit_recovers_hyperparameters(x64, gp_sample):
     _, _, fitted, _ = gp_sample
-    assert fitted.result == gp.FitResult.successful, fitted.message
+    assert fitted.result == RESULTS.successful, fitted.message
     const, rbf = fitted.kernel.kernels[0].kernels
     white = fitted.kernel.kernels[1]
     assert float(const.variance) == 1.0  # fixed
@@ -224,7 +225,7 @@ def test_not_positive_definite_is_reported_with_the_jitter(x64):
     with pytest.raises(ValueError, match=r"not positive definite even with jitter .*default"):
         gp.predict(_Indefinite(), X, y, Xs)
     fitted = gp.fit(_Indefinite(), X, y, key=jax.random.key(0))
-    assert fitted.result == gp.FitResult.not_positive_definite
+    assert fitted.result == RESULTS.not_positive_definite
     assert "jitter" in fitted.message
     with pytest.raises(ValueError, match="failed fit"):
         fitted.predict(Xs)
@@ -242,7 +243,7 @@ def test_fit_float32_data_with_both_methods():
     kernel = gp.RBF() + gp.White(1.0)
     fits = [gp.fit(kernel, X, y, key=jax.random.key(1), method=m, num_restarts=2) for m in ("fisher", "bfgs")]
     for fitted in fits:
-        assert fitted.result == gp.FitResult.successful, fitted.message
+        assert fitted.result == RESULTS.successful, fitted.message
         assert [s[1] for s in fitted.stages] == ["float32"]
         assert fitted.log_marginal_likelihood.dtype == jnp.float32
         assert fitted.predict(Xs.astype(np.float32))[0].dtype == jnp.float32

@@ -16,7 +16,8 @@ from jaxgaze.papers.yucel2013 import evaluate_regression, format_cogsci_table, f
 from jaxgaze.gp.exact import fit, predict
 from jaxgaze.gp.posterior import sample_hyperparameter_posterior
 from jaxgaze.headpose.regression import fit_gaze_regression, fit_gaze_regression_nn
-from jaxgaze.simulate.tabletop import head_pose_features, simulate_tabletop_sessions
+from jaxgaze.headpose.features import head_pose_features
+from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +68,7 @@ def test_tables_print_every_method_and_group(scores):
 
 def test_regression_predicts_training_truth_closely(sessions):
     s = sessions[0]
-    X = head_pose_features(s)[::3]
+    X = head_pose_features(s.head_pose)[::3]
     model = fit_gaze_regression(X, s.gaze_direction_image[::3], s.target_depth_image[::3], key=jax.random.key(0))
     assert model.converged
     pred = model.predict(X)
@@ -88,7 +89,7 @@ def test_regression_predicts_training_truth_closely(sessions):
 )
 def test_regression_rejects_bad_training_data(sessions, bad, message):
     s = sessions[0]
-    args = bad(head_pose_features(s)[:50], s.gaze_direction_image[:50], s.target_depth_image[:50])
+    args = bad(head_pose_features(s.head_pose)[:50], s.gaze_direction_image[:50], s.target_depth_image[:50])
     with pytest.raises(ValueError, match=message):
         fit_gaze_regression(*args, key=jax.random.key(0))
     with pytest.raises(ValueError, match=message):
@@ -97,7 +98,7 @@ def test_regression_rejects_bad_training_data(sessions, bad, message):
 
 def test_regression_predict_rejects_wrong_feature_count(sessions):
     s = sessions[0]
-    X = head_pose_features(s)[:60]
+    X = head_pose_features(s.head_pose)[:60]
     model = fit_gaze_regression(X, s.gaze_direction_image[:60], s.target_depth_image[:60], key=jax.random.key(0))
     with pytest.raises(ValueError, match=r"shape \(T, 3\)"):
         model.predict(np.zeros((4, 6)))

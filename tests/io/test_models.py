@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxgaze.gp.exact import FitResult, _finish
+from jaxgaze.gp.exact import _finish
 from jaxgaze.io.models import (
     FORMAT,
     VERSION,
@@ -23,12 +23,13 @@ from jaxgaze.io.models import (
 from jaxgaze.gp.kernels import RBF, ArcSine, Constant, Linear, Product, RationalQuadratic, Sum, White
 from jaxgaze.headpose.nn import MLPFit, Standardisation, init_mlp_params
 from jaxgaze.headpose.regression import GazeRegression, NNGazeRegression, Scaling
+from jaxgaze.results import RESULTS
 
 
 def _gp(kernel, X, y):
     """A FittedGP at the given hyperparameters (no optimisation: the tests need the file format, not a fit)."""
     dtype = jnp.asarray(np.zeros(1)).dtype
-    return _finish(kernel, jnp.asarray(X, dtype), jnp.asarray(y, dtype), None, FitResult.successful,
+    return _finish(kernel, jnp.asarray(X, dtype), jnp.asarray(y, dtype), None, RESULTS.successful,
                    jnp.asarray([-10.5, np.nan], dtype), ((40, "float32", 7), (len(X), "float64", 3)), False)
 
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
-from jaxgaze.vision.head_model import CylinderHead, frontal_rotation, pose_to_rotation
+from jaxgaze.geometry import head_pose_to_rotation
+from jaxgaze.vision.head_model import CylinderHead, frontal_rotation
 from jaxgaze.simulate.video import render_tabletop_video
 from jaxgaze.io.video import (
     VIDEO_CODECS,
@@ -153,7 +154,7 @@ def test_render_tabletop_video_draws_the_head_at_the_session_pose(session):
     np.testing.assert_allclose(truth.head_centre_image[3:], 2 * np.asarray(session.head_centre_image)[:4], rtol=1e-5)
 
     # The first frame is eye contact: the face's forward axis points from the eyes to the camera.
-    R = truth.R_optical_from_frontal @ np.asarray(pose_to_rotation(truth.head_pose[0]), np.float64)
+    R = truth.R_optical_from_frontal @ np.asarray(head_pose_to_rotation(yaw=truth.head_pose[0, 1], pitch=truth.head_pose[0, 0], roll=truth.head_pose[0, 2]), np.float64)
     eye = truth.head_position_optical[0]
     np.testing.assert_allclose(R[:, 0], -eye / np.linalg.norm(eye), atol=1e-6)
     np.testing.assert_allclose(frontal_rotation(truth.cylinder_centre_optical[0]), R, atol=1e-6)

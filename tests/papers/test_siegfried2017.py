@@ -28,7 +28,7 @@ from jaxgaze.papers.siegfried2017 import (
     random_frames,
     thinned_frames,
 )
-from jaxgaze.simulate.dyadic import simulate_dyadic, simulate_dyadic_sessions
+from tests import helpers as zoo
 
 SESSIONS = 12
 DURATION_S = 90.0
@@ -36,9 +36,8 @@ DURATION_S = 90.0
 
 @pytest.fixture(scope="module")
 def evaluation() -> BiasEvaluation:
-    k_int, k_desk, k_eval = jax.random.split(jax.random.key(2017), 3)
-    recordings = [simulate_dyadic_sessions(k_int, SESSIONS, "interview", duration_s=DURATION_S),
-                  simulate_dyadic_sessions(k_desk, SESSIONS, "desk", duration_s=DURATION_S)]
+    interview, desk, k_eval = zoo.bias_evaluation_dyads(SESSIONS, DURATION_S)
+    recordings = [interview, desk]
     ev = evaluate_bias_methods(recordings, k_eval, num_warmup=200, num_samples=200, time_bin_s=10.0)
     print()
     print(format_table1(ev))
@@ -138,7 +137,7 @@ def test_bayes_probability_decision(evaluation):
 
 
 def test_reproducible_and_single_recording():
-    rec = simulate_dyadic(jax.random.key(3), "desk", duration_s=70.0)
+    rec = zoo.dyad("desk", 70.0)
     a = evaluate_bias_methods(rec, jax.random.key(4), num_warmup=50, num_samples=50, time_bin_s=5.0)
     b = evaluate_bias_methods(rec, jax.random.key(4), num_warmup=50, num_samples=50, time_bin_s=5.0)
     assert a.num_people == 2 and a.scenarios == ["desk"]

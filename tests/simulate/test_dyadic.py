@@ -389,9 +389,9 @@ def test_bad_key(key):
 
 def test_raw_uint32_key_accepted():
     # Validation only (no run): the legacy PRNGKey format passes the key check.
-    from jaxgaze.simulate.dyadic import _check_key
+    from jaxgaze._checks import check_key
 
-    _check_key(jax.random.PRNGKey(0))
+    check_key(jax.random.PRNGKey(0))
 
 
 @pytest.mark.parametrize("num_sessions", [0, -2, 2.0, True, "3"])

@@ -12,7 +12,7 @@ from jaxgaze.simulate.tabletop import (
     IMAGE_HEIGHT,
     IMAGE_WIDTH,
     TabletopSession,
-    head_pose_features,
+    session_features,
     project_optical_to_image,
     simulate_tabletop_sessions,
     tabletop_config,
@@ -70,8 +70,8 @@ def test_shapes_and_counts(sessions):
         for v in _np(s).values():
             if isinstance(v, np.ndarray) and v.dtype.kind == "f":
                 assert np.all(np.isfinite(v))
-        np.testing.assert_array_equal(np.asarray(head_pose_features(s)), np.asarray(s.head_pose))
-        feats = np.asarray(head_pose_features(s, include_position=True))
+        np.testing.assert_array_equal(np.asarray(session_features(s)), np.asarray(s.head_pose))
+        feats = np.asarray(session_features(s, include_position=True))
         assert feats.shape == (T, 6)
         np.testing.assert_array_equal(feats[:, :3], np.asarray(s.head_pose))
         np.testing.assert_array_equal(feats[:, 3:], np.asarray(s.head_position_optical))
@@ -339,7 +339,7 @@ def test_bad_key_config_and_session_types():
     with pytest.raises(TypeError, match="config"):
         simulate_tabletop_sessions(jax.random.key(0), config={"focal_px": (300, 350)})
     with pytest.raises(TypeError, match="TabletopSession"):
-        head_pose_features(np.zeros((5, 6)))
+        session_features(np.zeros((5, 6)))
     with pytest.raises(ValueError, match="in front"):
         project_optical_to_image(np.array([0.0, 0.0, -1.0]), 300.0)
     with pytest.raises(ValueError, match="NaN"):

@@ -10,7 +10,8 @@ import pytest
 
 from jaxgaze.headpose import target as tg
 from jaxgaze.headpose.regression import fit_gaze_regression
-from jaxgaze.simulate.tabletop import head_pose_features, simulate_tabletop_sessions
+from jaxgaze.headpose.features import head_pose_features
+from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
 from jaxgaze.vision import tracker
 from jaxgaze.vision.attend import (
     Attention,
@@ -20,7 +21,8 @@ from jaxgaze.vision.attend import (
     target_point_covariance,
 )
 from jaxgaze.papers.yucel2013_attention import attend_session
-from jaxgaze.vision.head_model import CylinderHead, pose_to_rotation, render_head
+from jaxgaze.geometry import head_pose_to_rotation
+from jaxgaze.vision.head_model import CylinderHead, render_head
 from jaxgaze.simulate.render import composite, render_tabletop_scene
 from jaxgaze.vision.saliency_maps import SALIENCY_METHODS, saliency
 
@@ -163,7 +165,7 @@ def table_top():
     """2 people × 2 sessions of 20 s at 10 fps; a GPR fitted on person 1 (100 frames)."""
     sessions = simulate_tabletop_sessions(jax.random.key(0), num_people=2, sessions_per_person=2, duration_s=20.0)
     train = np.linspace(0, 399, 100).round().astype(int)
-    X = np.concatenate([np.asarray(head_pose_features(s)) for s in sessions[2:]])[train]
+    X = np.concatenate([np.asarray(head_pose_features(s.head_pose)) for s in sessions[2:]])[train]
     f1 = np.concatenate([np.asarray(s.gaze_direction_image) for s in sessions[2:]])[train]
     f2 = np.concatenate([np.asarray(s.target_depth_image) for s in sessions[2:]])[train]
     model = fit_gaze_regression(X, f1, f2, key=jax.random.key(1))
@@ -188,7 +190,7 @@ def test_saliency_raises_q1_above_regression_alone(table_top):
         assert q[1] > regr[1] - 0.1  # Q2 stays (the nearest centre is already an object)
     # the regression-alone scores are those of gp.evaluate (pooled T-CYB eq. 14–15)
     s = sessions[0]
-    pred = model.predict(head_pose_features(s))
+    pred = model.predict(head_pose_features(s.head_pose))
     points = np.asarray(tg.target_point(s.head_centre_image, pred.direction, pred.depth))
     pooled = tg.pool(points, 4, labels=s.target)
     assert first.q1_regression == pytest.approx(tg.q1(pooled.values, s.object_boxes_image, pooled.labels,
@@ -218,7 +220,7 @@ def test_attend_frames_on_a_rendered_video_attends_objects(table_top):
     Rf = np.asarray(s.R_optical_from_frontal, np.float64)
     frames = []
     for p, e in zip(poses, eyes):
-        centre = e - (Rf @ np.asarray(pose_to_rotation(p), np.float64))[:, 0] * CylinderHead().half_depth_m
+        centre = e - (Rf @ np.asarray(head_pose_to_rotation(yaw=p[1], pitch=p[0], roll=p[2]), np.float64))[:, 0] * CylinderHead().half_depth_m
         head, mask = render_head(p, focal_px=s.focal_px, position_optical=centre, R_optical_from_frontal=Rf,
                                  background=scene.image)
         frames.append(composite(scene.image, head, mask))

@@ -12,12 +12,23 @@ from jaxgaze.vision.head_model import (
     distance_for_width_px,
     frontal_rotation,
     load_face_texture,
-    pose_to_rotation,
     projected_width_px,
     render_head,
-    rotation_to_pose,
 )
 from jaxgaze.vision.tracker import HeadTrack, _update, initial_head_position, track_head
+from jaxgaze.geometry import head_pose_to_rotation, rotation_to_head_pose
+
+
+def pose_to_rotation(pose):
+    """``R_frontal_from_head`` of ``(..., 3)`` poses in the tracker's column order (pitch, yaw, roll)."""
+    pose = np.asarray(pose)
+    return head_pose_to_rotation(yaw=pose[..., 1], pitch=pose[..., 0], roll=pose[..., 2])
+
+
+def rotation_to_pose(R):
+    """Inverse of :func:`pose_to_rotation`: ``(..., 3)`` (pitch, yaw, roll)."""
+    yaw, pitch, roll = rotation_to_head_pose(R)
+    return np.stack([pitch, yaw, roll], axis=-1)
 
 W, H, F = 320, 240, 300.0
 DEG = np.pi / 180

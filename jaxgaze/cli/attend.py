@@ -1,0 +1,191 @@
+"""``jaxgaze attend VIDEO --model gp.json --out attend.csv``: the object a person attends to in each
+window of a video, from their head pose (Yücel et al. 2013, T-CYB Sec. IV-VI)."""
+
+from __future__ import annotations
+
+import argparse
+
+from jaxgaze.cli._common import CommandError, check_output, int_at_least, positive_float, show_progress, summary, warn
+from jaxgaze.cli._common import writing
+from jaxgaze.io.attend import ATTEND_COLUMNS
+from jaxgaze.io.text import InputFileError
+
+_DESCRIPTION = """\
+The attended object per window of frames of a video (Yücel et al. 2013,
+T-CYB Sec. IV-VI): the head is tracked with a cylindrical head model (the
+first frame must show the face frontally, looking at the camera), the gaze
+regression of --model predicts from the head pose the image angle of the gaze
+(f1) and the image row of the target (f2) with their variances, each window of
+--window frames pools the target points, and bottom-up saliency (--method)
+around them picks the attended location, with a posterior probability.
+
+The model's f2 is a row of the images it was trained on (metadata image_size);
+for a video of another size it is scaled by the ratio of the image heights,
+and so is the default focal length.
+
+OUT.csv has one row per window (a trailing incomplete window is dropped), columns
+  """ + ", ".join(ATTEND_COLUMNS) + """:
+  window, start_frame   window index and its first frame (from 0)
+  start_time            start_frame / fps, seconds (empty when no fps is known)
+  valid                 1 where a location was attended, else 0 (see reason)
+  pitch, yaw, roll      pooled head pose, radians, relative to the first frame's
+                        eye-contact head frame (yaw > 0 to the person's left,
+                        pitch > 0 up, roll > 0 left ear up)
+  direction             pooled f1, radians (atan2(dy, dx) in the image: +pi/2 down)
+  depth_y               pooled f2, image row, px
+  head_x, head_y        pooled head centre in the image, px
+  target_x, target_y    pooled regression target point, px
+  attended_x, attended_y  the attended location, px
+  region_x_min, region_y_min, region_x_max, region_y_max
+                        the salient region there, px
+  probability           the attended location's posterior probability
+  reason                why a window is not valid: "tracker lost" or "no location
+                        stands out" (empty when valid)
+Image coordinates: x right, y down, origin at the top-left pixel's outer corner.
+Missing values are empty cells.
+"""
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        "attend", formatter_class=argparse.RawDescriptionHelpFormatter, description=_DESCRIPTION,
+        help="the object a person attends to in a video, per window of frames, from their head pose (Yücel et al. "
+             "2013)",
+    )
+    parser.add_argument("video", metavar="VIDEO",
+                        help="a video file OpenCV can read, or a folder of frames (.png, .jpg, ...; natural order)")
+    parser.add_argument("--model", required=True, metavar="GP.json",
+                        help="gaze regression written by 'jaxgaze fit-gaze' or jaxgaze.io.models.save_gaze_regression")
+    parser.add_argument("--out", default="attend.csv", metavar="OUT.csv",
+                        help="output CSV, one row per window (default attend.csv; replaced only on success)")
+    parser.add_argument("--method", choices=("itti", "spectral_residual"), default="itti",
+                        help="bottom-up saliency: itti (Itti-Koch-Niebur) or spectral_residual (Hou & Zhang) "
+                             "(default itti)")
+    parser.add_argument("--window", type=int_at_least(1), default=None, metavar="N",
+                        help="frames pooled per window (default: the model's 'window', else 4; T-CYB: 4 at 10 fps)")
+    parser.add_argument("--focal-px", type=positive_float, default=None, metavar="F",
+                        help="focal length of the video's camera in pixels (default: the model's 'focal_px', scaled "
+                             "to the video's image size)")
+    parser.add_argument("--fps", type=positive_float, default=None, metavar="FPS",
+                        help="frame rate for the start_time column (default: the video's, else the model's)")
+    parser.add_argument("--initial-box", type=float, nargs=4, default=None, metavar=("X", "Y", "W", "H"),
+                        help="the face box in the first frame, pixels (x right, y down from the top-left corner); "
+                             "default: detected")
+    parser.add_argument("--max-frames", type=int_at_least(1), default=None, metavar="N", help="read at most N frames")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="show progress bars (default: when stderr is a terminal)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary line on stderr")
+    return parser
+
+
+class _VideoRegression:
+    """The loaded regression as :func:`~jaxgaze.vision.attend.attend_frames` uses it: ``predict`` in
+    float64 (the tracker runs in float32, so x64 is not switched on globally), with the depth row
+    ``f2`` (and its variance) scaled from the model's training images to the video's by ``k``."""
+
+    def __init__(self, regression, k: float):
+        self.regression, self.k = regression, float(k)
+
+    @property
+    def features(self):
+        features = getattr(self.regression, "features", None)
+        if features is not None:
+            return features
+        import numpy as np
+
+        from jaxgaze.headpose.regression import Scaling
+
+        width = self.regression.direction_net.params.W1.shape[0]  # the NN baseline scales its own inputs
+        return Scaling(np.zeros(width), np.ones(width))
+
+    def predict(self, features):
+        import jax
+        import numpy as np
+
+        from jaxgaze.headpose.regression import GazePrediction
+
+        with jax.enable_x64(True):
+            p = self.regression.predict(np.asarray(features, np.float64))
+            d, y = np.asarray(p.direction, np.float64), np.asarray(p.depth, np.float64)
+            vd = None if p.direction_variance is None else np.asarray(p.direction_variance, np.float64)
+            vy = None if p.depth_variance is None else np.asarray(p.depth_variance, np.float64)
+        return GazePrediction(d, y * self.k, vd, None if vy is None else vy * self.k ** 2)
+
+
+class _Frames:
+    """The frames of VIDEO, read lazily each time it is iterated."""
+
+    def __init__(self, path: str, max_frames):
+        self.path, self.max_frames = path, max_frames
+
+    def __iter__(self):
+        from jaxgaze.io.video import iter_frames
+
+        return iter_frames(self.path, max_frames=self.max_frames)
+
+
+class _CountedFrames(_Frames):
+    def __init__(self, path: str, max_frames, count: int):
+        super().__init__(path, max_frames)
+        self.count = count
+
+    def __len__(self) -> int:
+        return self.count
+
+
+def run(args) -> int:
+    import jax
+    import numpy as np
+
+    from jaxgaze.io.attend import write_attend_csv
+    from jaxgaze.io.models import load_gaze_regression, metadata_image_size, metadata_number
+    from jaxgaze.io.video import frame_count, iter_frames, video_fps
+    from jaxgaze.vision.attend import attend_frames
+
+    progress = (not args.quiet and args.progress) if args.progress is not None else show_progress(args)
+    check_output(args.out)
+    height, width = next(iter(iter_frames(args.video, max_frames=1))).shape[:2]
+    count, fps_video = frame_count(args.video), video_fps(args.video)
+    with jax.enable_x64(True):  # a float32 fit is rebuilt in float64 (its Cholesky factor stays positive definite)
+        regression, metadata = load_gaze_regression(args.model, with_metadata=True)
+
+    size = metadata_image_size(metadata, args.model)
+    scale = 1.0 if size is None else height / size[1]
+    notes = []
+    if size is not None and abs(width / size[0] - scale) > 0.01 * scale:
+        notes.append(f"the video is {width}x{height} px but the model was trained on {size[0]}x{size[1]} px images "
+                     f"(another aspect ratio): its depth rows are scaled by the heights, x {scale:.4g}")
+    focal = args.focal_px
+    if focal is None:
+        model_focal = metadata_number(metadata, "focal_px", args.model)
+        if model_focal is None:
+            raise CommandError("no focal length: pass --focal-px (the model file has no metadata 'focal_px')",
+                               args.model)
+        focal = model_focal * scale
+    window = args.window or metadata_number(metadata, "window", args.model, integer=True) or 4
+    fps = args.fps or fps_video or metadata_number(metadata, "fps", args.model)
+    if args.max_frames is not None and count is not None:
+        count = min(count, args.max_frames)
+    if count is not None and count < window:
+        raise CommandError(f"the video has {count} frame(s), fewer than one window of {window}", args.video)
+    for note in notes:
+        warn(note)
+
+    frames = _CountedFrames(args.video, args.max_frames, count) if count else _Frames(args.video, args.max_frames)
+    try:
+        windows = attend_frames(frames, _VideoRegression(regression, scale), focal_px=focal, window=window,
+                                method=args.method, initial_box=args.initial_box, progress=progress)
+    except InputFileError:  # a VideoFileError while reading the frames
+        raise
+    except ValueError as error:
+        raise CommandError(str(error), args.video) from None
+    with writing(args.out):
+        rows = write_attend_csv(args.out, windows, fps)
+
+    valid = np.asarray(windows.valid, bool)
+    timing = f", {rows * window / fps:.1f} s at {fps:g} fps" if fps else ""
+    mean_p = f"; mean probability {float(np.mean(windows.probability[valid])):.2f}" if valid.any() else ""
+    scaled = f"; model image rows and focal length scaled x {scale:g} to the {width}x{height} px video" if scale != 1 else ""
+    summary(args, f"{int(valid.sum())} of {rows} window(s) of {window} frames attended ({rows * window} frames{timing}, "
+                  f"focal length {focal:.1f} px, {args.method} saliency){mean_p}{scaled}; written to {args.out}")
+    return 0

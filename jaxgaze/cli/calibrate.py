@@ -1,0 +1,111 @@
+"""``jaxgaze calibrate POSES_A POSES_B --out calib.json``: wearer A's primary gaze ray (cone model,
+Park et al. 2012, Sec. 3.2) from a session in which A looks at B's head-mounted camera."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+
+from jaxgaze.cli._common import CommandError, check_output, int_at_least, summary, writing
+
+DEFAULT_SAMPLES = 500
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        "calibrate",
+        help="calibrate a wearer's primary gaze ray from a session of two people looking at each other's camera",
+        description="Calibrate the primary gaze ray (cone model, Park et al. 2012, Sec. 3.2) of wearer A from a "
+                    "session in which A looks at B's head-mounted camera. POSES_A and POSES_B are COLMAP "
+                    "images.txt files (.txt) or pose CSVs (.csv: frame, qw, qx, qy, qz, cx, cy, cz, with q "
+                    "the quaternion of R_camera_from_world in the camera frame +x forward, +y left, +z up); "
+                    "frames are matched by frame id. Writes a JSON with the eye centre (metres) and unit "
+                    "gaze direction in A's camera frame (+x forward, +y left, +z up) and the bandwidth h "
+                    "(radians): wearer, frame, eye_center, direction, bandwidth, alpha, xi, num_points, "
+                    "num_inliers, method.",
+    )
+    parser.add_argument("poses_a", metavar="POSES_A", help="camera poses of the wearer (images.txt or .csv)")
+    parser.add_argument("poses_b", metavar="POSES_B", help="camera poses of the partner A looks at")
+    parser.add_argument("--out", required=True, metavar="CALIB.json", help="output JSON (replaced only on success)")
+    parser.add_argument("--posterior", default=None, metavar="POSTERIOR.nc",
+                        help="also sample the Bayesian posterior (NUTS, started at the point estimate), write "
+                             "its arviz InferenceData to this NetCDF file and a summary into the JSON")
+    parser.add_argument("--samples", type=int_at_least(1), default=DEFAULT_SAMPLES, metavar="N",
+                        help=f"NUTS warm-up steps and draws for --posterior (default {DEFAULT_SAMPLES})")
+    parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default 0)")
+    parser.add_argument("--wearer", default=None, metavar="NAME",
+                        help="name of the wearer, matched to the 'person' column by 'concurrences "
+                             "--calibration' (default: the file name of POSES_A without its extension)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no summary line on stderr")
+    return parser
+
+
+def _posterior(args, points, fit, key):
+    """NUTS from the point estimate; arviz's one-chain r-hat message is kept off stderr."""
+    import jax
+    import numpy as np
+
+    import arviz
+
+    from jaxgaze.calibration.posterior import calibrate_cone_posterior
+
+    arviz_log = getattr(arviz, "_log", None) or logging.getLogger("arviz")
+    level = arviz_log.level
+    arviz_log.setLevel(logging.ERROR)
+    try:
+        return calibrate_cone_posterior(points, key=jax.random.fold_in(key, 1), num_warmup=args.samples,
+                                        num_samples=args.samples, init_eye_center=np.asarray(fit.eye_center),
+                                        init_direction=np.asarray(fit.direction))
+    except ValueError as error:
+        raise CommandError(f"posterior sampling failed: {error}", args.poses_a) from None
+    finally:
+        arviz_log.setLevel(level)
+
+
+def run(args) -> int:
+    import jax
+
+    from jaxgaze.calibration.cone_fit import calibrate_cone
+    from jaxgaze.io.calibration import write_calibration_json
+    from jaxgaze.io.poses import read_poses
+    from jaxgaze.poses import match_frames, points_of_regard
+
+    wearer = (args.wearer if args.wearer is not None else os.path.splitext(os.path.basename(args.poses_a))[0]).strip()
+    if not wearer:
+        raise CommandError("--wearer must not be empty")
+    check_output(args.out)
+    if args.posterior is not None:
+        check_output(args.posterior, "posterior")
+        if os.path.abspath(args.posterior) == os.path.abspath(args.out):
+            raise CommandError("--posterior and --out must be different files", args.out)
+    poses_a, poses_b = read_poses(args.poses_a), read_poses(args.poses_b)
+    try:
+        poses_a, poses_b = match_frames(poses_a, poses_b, by="frame")
+    except ValueError:
+        raise CommandError(f"no matching frames: POSES_A and POSES_B share no frame id ({poses_a.num_frames} and "
+                           f"{poses_b.num_frames} poses; other file: {args.poses_b})", args.poses_a) from None
+    if poses_a.num_frames < 3:
+        raise CommandError(f"only {poses_a.num_frames} frame(s) in common with {args.poses_b}; calibration needs at "
+                           "least 3", args.poses_a)
+    points = points_of_regard(poses_a, poses_b)
+    key = jax.random.key(args.seed)
+    try:
+        fit = calibrate_cone(points, key=key, throw=False)
+    except ValueError as error:
+        raise CommandError(f"calibration failed: {error}", args.poses_a) from None
+    if not bool(fit.succeeded):
+        raise CommandError(f"calibration failed: {fit.message}", args.poses_a)
+    posterior = None if args.posterior is None else _posterior(args, points, fit, key)
+
+    with writing(args.out, also={args.posterior: "posterior"}):
+        record = write_calibration_json(args.out, wearer, fit, posterior=posterior, posterior_path=args.posterior,
+                                        num_warmup=args.samples)
+    d = record["direction"]
+    summary(args, f"calibrated '{wearer}' from {record['num_points']} frame(s), {record['num_inliers']} inlier(s): "
+                  f"eye centre ({', '.join(f'{x:.3f}' for x in record['eye_center'])}) m, "
+                  f"{math.degrees(math.atan2(math.hypot(d[1], d[2]), d[0])):.1f}° off the optical axis, "
+                  f"h = {record['bandwidth']:.4f} rad; written to {args.out}"
+                  + (f" and {args.posterior}" if args.posterior else ""))
+    return 0

@@ -1,0 +1,123 @@
+"""Primary gaze rays as CSV, one row per (frame, person) (Park et al. 2012, Sec. 3.1).
+
+Rays are in the world frame: origin ``(ox, oy, oz)`` the centre of the eyes (metres),
+direction ``(dx, dy, dz)`` (any length, normalised on reading), and optionally the
+bandwidth ``h`` (radians). Errors raise :class:`~jaxgaze.io.text.InputFileError`
+(``path, line N: what``); writers are atomic.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from jaxgaze.io.text import InputFileError, atomic_path, format_float, read_csv_table
+from jaxgaze.rays import GazeRays
+
+__all__ = ["CSV_COLUMNS", "DEFAULT_BANDWIDTH", "RayRecording", "read_rays_csv", "write_rays_csv", "stack_rays"]
+
+#: Required columns of a rays CSV (a ``bandwidth`` column is optional).
+CSV_COLUMNS = ("frame", "person", "ox", "oy", "oz", "dx", "dy", "dz")
+#: Bandwidth ``h`` (radians) of every ray of a rays CSV without a ``bandwidth`` column.
+DEFAULT_BANDWIDTH = 0.05
+
+_MIN_DIRECTION_NORM = 1e-9
+_FLOAT32_MAX = 3.4028234e38
+
+
+class RayRecording(NamedTuple):
+    """A recording of gaze rays: sorted ``frame_ids`` ``(T,)``, the ``persons`` of each frame
+    (lists, in file order) and :class:`~jaxgaze.rays.GazeRays` ``(T, N)`` padded and masked
+    as by :meth:`GazeRays.stack` (``N`` the most people in a frame)."""
+
+    frame_ids: list
+    persons: list
+    rays: GazeRays
+
+
+def stack_rays(frames: Sequence[int], persons: Sequence[str], origins, directions, bandwidth, *,
+               path) -> RayRecording:
+    """One ray per row (frame, person, origin (3,), direction (3,), bandwidth) → a :class:`RayRecording`.
+
+    Rows keep their order within a frame; frames are sorted. Each frame is a
+    :class:`GazeRays` and :meth:`GazeRays.stack` pads them; its ``ValueError`` becomes
+    an :class:`InputFileError` naming ``path``.
+    """
+    origins, directions = np.asarray(origins, np.float64), np.asarray(directions, np.float64)
+    bandwidth = np.broadcast_to(np.asarray(bandwidth, np.float64), (len(frames),))
+    rows_of: dict[int, list[int]] = {}
+    for i, frame in enumerate(frames):
+        rows_of.setdefault(int(frame), []).append(i)
+    if not rows_of:
+        raise InputFileError("no gaze rays", path)
+    frame_ids = sorted(rows_of)
+    try:
+        rays = GazeRays.stack([GazeRays(origins[rows_of[f]], directions[rows_of[f]], bandwidth[rows_of[f]])
+                               for f in frame_ids])
+    except ValueError as error:
+        raise InputFileError(str(error), path) from None
+    return RayRecording(frame_ids, [[persons[i] for i in rows_of[f]] for f in frame_ids], rays)
+
+
+def _float32(row, column: str) -> float:
+    value = row.number(column)
+    if abs(value) > _FLOAT32_MAX:
+        raise row.error(f"column '{column}' is out of range (beyond float32): {row.cell(column)!r}")
+    return value
+
+
+def read_rays_csv(path, default_bandwidth: float = DEFAULT_BANDWIDTH) -> RayRecording:
+    """Read a CSV of primary gaze rays (columns :data:`CSV_COLUMNS`, optionally ``bandwidth``).
+
+    Columns are in any order (case-insensitive); other columns are ignored, blank lines
+    skipped. Rays without a ``bandwidth`` column get ``default_bandwidth``. Raises
+    :class:`InputFileError` naming the file and line for a header problem, an empty or
+    non-numeric cell, NaN/inf or a value beyond float32, a non-integer frame, a
+    non-positive bandwidth, a zero direction or a duplicate (frame, person).
+    """
+    table = read_csv_table(path, CSV_COLUMNS, ("bandwidth",), empty="input is empty: expected a header row with "
+                           "columns " + ", ".join(CSV_COLUMNS), empty_at_end=True)
+    frames, persons, origins, directions, bandwidth = [], [], [], [], []
+    seen: dict[tuple[int, str], int] = {}
+    for row in table.rows:
+        frame = row.integer("frame")
+        person = row.text("person")
+        origin = [_float32(row, c) for c in ("ox", "oy", "oz")]
+        direction = [_float32(row, c) for c in ("dx", "dy", "dz")]
+        h = default_bandwidth
+        if table.has("bandwidth"):
+            h = _float32(row, "bandwidth")
+            if h <= 0:
+                raise row.error(f"bandwidth must be positive (radians), got {row.cell('bandwidth')}")
+        if math.sqrt(sum(x * x for x in direction)) < _MIN_DIRECTION_NORM:
+            raise row.error("direction (dx, dy, dz) has zero length")
+        first = seen.setdefault((frame, person), row.line)
+        if first != row.line:
+            raise row.error(f"duplicate ray for frame {frame}, person '{person}' (first on line {first})")
+        frames.append(frame)
+        persons.append(person)
+        origins.append(origin)
+        directions.append(direction)
+        bandwidth.append(h)
+    return stack_rays(frames, persons, origins, directions, bandwidth, path=table.path)
+
+
+def write_rays_csv(path, recording: RayRecording) -> int:
+    """Write a :class:`RayRecording` as a rays CSV with a ``bandwidth`` column (atomically);
+    returns the number of rows. Padded slots are not written."""
+    mask = np.asarray(recording.rays.mask)
+    origins, directions = np.asarray(recording.rays.origins), np.asarray(recording.rays.directions)
+    bandwidth = np.asarray(recording.rays.bandwidth)
+    rows = 0
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
+        writer = csv.writer(handle, lineterminator="\n")
+        writer.writerow(CSV_COLUMNS + ("bandwidth",))
+        for t, (frame, persons) in enumerate(zip(recording.frame_ids, recording.persons)):
+            for n in np.flatnonzero(mask[t]):
+                writer.writerow([int(frame), persons[n], *map(format_float, origins[t, n]), *map(format_float, directions[t, n]),
+                                 format_float(bandwidth[t, n])])
+                rows += 1
+    return rows

@@ -1,0 +1,141 @@
+"""One result code for every fit in jaxgaze, after ``optimistix.RESULTS``.
+
+A fit (:func:`jaxgaze.calibrate_cone`, :func:`jaxgaze.gp.fit`, …) reports its
+outcome as a :class:`RESULTS` item, an ``equinox.Enumeration``: a JAX-compatible
+enum that passes through ``jit`` and ``vmap`` (the code is an int32 array, with
+the batch axes of a vmapped fit). Compare with ``==``, never with integers::
+
+    ok = fitted.result == RESULTS.successful  # a bool array; per item when batched
+    RESULTS[fitted.result]                    # its message (concrete results only)
+
+**One throw rule.** ``throw=True`` raises :class:`FitError` (message: the
+:class:`RESULTS` message, prefixed by what failed) when the result is not
+``successful``; under ``jit``/``vmap`` the same message becomes an ``equinox``
+runtime error. ``throw=False`` never raises on a failed fit: the code is returned
+in the solution, with NaN-free placeholder values where the fit documents them.
+Bad *arguments* (shapes, types, options) raise ``ValueError``/``TypeError``
+either way. Both rules are :func:`throw_if_failed`.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import numpy as np
+
+__all__ = ["RESULTS", "FitError", "NAMES", "code", "name", "from_name", "throw_if_failed"]
+
+
+class RESULTS(eqx.Enumeration):
+    """Outcome of a fit. Each member's value is its message."""
+
+    successful = "the fit succeeded"
+    max_steps_reached = (
+        "the solver used max_steps without meeting its tolerance; the result is the best point reached; "
+        "raise max_steps or tol"
+    )
+    nonfinite = (
+        "NaN or inf: the input contains NaN or inf, or the objective is not finite at any starting point; "
+        "check the input and its scale (a GP fit: or pass a larger jitter)"
+    )
+    not_positive_definite = (
+        "the covariance K(X, X) + jitter·I is not positive definite at the fitted parameters; "
+        "add a White noise term or pass a larger jitter"
+    )
+    optimiser_failed = (
+        "the optimiser stopped on an optimistix failure, or at a non-finite objective, in the last stage "
+        "(the previous stage's optimum is returned)"
+    )
+    too_few_inliers = (
+        "too few RANSAC inliers to fit the gaze line; check the points of regard or raise inlier_threshold"
+    )
+    degenerate = (
+        "degenerate points of regard: they coincide or lie exactly on one line (no eye-in-head spread, "
+        "so h = 0 and the apex is undefined)"
+    )
+    behind_camera = (
+        "most points of regard are behind the camera (x ≤ 0 in the camera frame, where +x is forward); "
+        "pass points in the camera frame (+x forward, +y left, +z up), not OpenCV's frame or the world frame"
+    )
+    collinear_through_camera = (
+        "degenerate points of regard: the points are collinear through the camera centre (the fitted line "
+        "passes through the origin), so the apex (centre of the eyes) is undefined"
+    )
+
+
+#: Member names in code order (``NAMES[i]`` is the member whose code is ``i``); these are
+#: the names stored in model files (``gp.json``).
+NAMES = (
+    "successful",
+    "max_steps_reached",
+    "nonfinite",
+    "not_positive_definite",
+    "optimiser_failed",
+    "too_few_inliers",
+    "degenerate",
+    "behind_camera",
+    "collinear_through_camera",
+)
+
+
+class FitError(RuntimeError, ValueError):
+    """A fit called with ``throw=True`` did not succeed.
+
+    A ``RuntimeError`` (the solver failed at run time) and a ``ValueError`` (the
+    data, not the call, is the cause: e.g. degenerate points of regard), so code
+    that catches either keeps working. ``result`` is the :class:`RESULTS` item.
+    """
+
+    def __init__(self, message: str, result: RESULTS | None = None):
+        super().__init__(message)
+        self.result = result
+
+
+def code(result: RESULTS):
+    """The int32 code array of a :class:`RESULTS` item (batch axes kept); ``NAMES[code]`` is its name."""
+    if not isinstance(result, RESULTS):
+        raise TypeError(f"expected a jaxgaze.results.RESULTS item, got {type(result).__name__}")
+    (value,) = jax.tree.leaves(result)
+    return value
+
+
+def name(result: RESULTS) -> str:
+    """The member name of one concrete :class:`RESULTS` item, e.g. ``"successful"``."""
+    value = np.asarray(code(result))
+    if value.ndim != 0:
+        raise ValueError(f"name needs a single result, got a batch of shape {value.shape}")
+    return NAMES[int(value)]
+
+
+def from_name(member: str) -> RESULTS:
+    """The :class:`RESULTS` item called ``member``; a ``ValueError`` lists the names if there is none."""
+    if member not in NAMES:
+        raise ValueError(f"unknown result {member!r}; expected one of {', '.join(NAMES)}")
+    return getattr(RESULTS, member)
+
+
+def throw_if_failed(token, result: RESULTS, context: str):
+    """Apply ``throw=True``: raise unless ``result`` is ``successful``; returns ``token``.
+
+    Concrete results raise :class:`FitError` with message ``"{context}: {RESULTS
+    message}"`` (for a batch, that of the first failure). Traced results (under
+    ``jit``/``vmap``) thread an ``equinox`` runtime error with the same message onto
+    the arrays of ``token``, which is returned to be used in their place.
+    """
+    value = code(result)
+    if isinstance(value, jax.core.Tracer):
+        messages = [f"{context}: {RESULTS[getattr(RESULTS, n)]}" for n in NAMES]
+        return eqx.branched_error_if(token, result != RESULTS.successful, value, messages)
+    values = np.asarray(value).reshape(-1)
+    failed = np.flatnonzero(values != 0)
+    if failed.size:
+        first = from_name(NAMES[int(values[failed[0]])])
+        where = f" (item {int(failed[0])} of the batch)" if np.ndim(value) else ""
+        raise FitError(f"{context}{where}: {RESULTS[first]}", result)
+    return token
+
+
+for _i, _name in enumerate(NAMES):  # NAMES must list the members in code order
+    assert int(code(getattr(RESULTS, _name))) == _i, _name
+assert len(RESULTS) == len(NAMES)
+del _i, _name
