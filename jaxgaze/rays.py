@@ -128,6 +128,41 @@ class GazeRays(eqx.Module):
             padded("origins", dtype), padded("directions", dtype), padded("bandwidth", dtype), padded("mask", bool)
         )
 
+    @classmethod
+    def from_rows(cls, row_frames, origins, directions, bandwidth=0.05) -> tuple[np.ndarray, "GazeRays"]:
+        """Rays given one per row with the frame of each row → ``(frame_ids, rays)``.
+
+        ``frame_ids`` are the sorted distinct frames ``(T,)``; ``rays`` is ``(T, N_max)``
+        padded and masked as by :meth:`stack`, the rows of a frame in their given order.
+        ``origins``, ``directions`` ``(M, 3)``, ``bandwidth`` scalar or ``(M,)``.
+        """
+        row_frames = np.asarray(row_frames).reshape(-1)
+        origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+        directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+        count = row_frames.shape[0]
+        if count == 0:
+            raise ValueError("GazeRays.from_rows: no rows given")
+        if origins.shape[0] != count or directions.shape[0] != count:
+            raise ValueError(f"GazeRays.from_rows: {count} frames but {origins.shape[0]} origins and "
+                             f"{directions.shape[0]} directions")
+        bandwidth = np.broadcast_to(np.asarray(bandwidth, dtype=np.float64), (count,))
+        length = np.linalg.norm(directions, axis=-1, keepdims=True)
+        directions = np.where(length > 0, directions / np.where(length > 0, length, 1.0), directions)  # float64
+        frame_ids, frame_of_row, per_frame = np.unique(row_frames, return_inverse=True, return_counts=True)
+        order = np.argsort(frame_of_row, kind="stable")
+        first_row = np.concatenate([[0], np.cumsum(per_frame)[:-1]])
+        slot = np.empty(count, dtype=np.int64)
+        slot[order] = np.arange(count) - np.repeat(first_row, per_frame)
+
+        def padded(values, fill):
+            out = np.full((len(frame_ids), int(per_frame.max())) + values.shape[1:], fill, dtype=values.dtype)
+            out[frame_of_row, slot] = values
+            return out
+
+        rays = cls(padded(origins, 0.0), padded(directions, 1.0), padded(bandwidth, 1.0),
+                   padded(np.ones(count, dtype=bool), False))
+        return frame_ids, rays
+
 
 def _validate(origins: np.ndarray, directions: np.ndarray, bandwidth: np.ndarray, mask: np.ndarray) -> None:
     for name, values in (("origins", origins), ("directions", directions)):

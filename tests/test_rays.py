@@ -265,3 +265,18 @@ def test_grad_through_rays():
 
     grad = jax.jit(jax.grad(f))(jnp.asarray(O, jnp.float32))
     assert grad.shape == O.shape and np.all(np.isfinite(grad))
+
+
+def test_from_rows_equals_stacking_frames_in_row_order():
+    rng = np.random.default_rng(0)
+    frames = np.array([7, 3, 7, 7, 3, 9])
+    origins, directions = rng.normal(size=(6, 3)), rng.normal(size=(6, 3))
+    bandwidth = rng.uniform(0.02, 0.1, 6)
+    frame_ids, rays = GazeRays.from_rows(frames, origins, directions, bandwidth)
+    np.testing.assert_array_equal(frame_ids, [3, 7, 9])
+    expected = GazeRays.stack([GazeRays(origins[frames == f], directions[frames == f], bandwidth[frames == f])
+                               for f in (3, 7, 9)])
+    for field in ("origins", "directions", "bandwidth", "mask"):
+        np.testing.assert_allclose(np.asarray(getattr(rays, field)), np.asarray(getattr(expected, field)), atol=1e-6)
+    with pytest.raises(ValueError, match="zero length"):
+        GazeRays.from_rows([1, 1], origins[:2], np.zeros((2, 3)))

@@ -101,7 +101,7 @@ class ConeCalibration(NamedTuple):
     bandwidth: Float[Array, ""]
     alpha: Float[Array, ""]
     xi: Float[Array, ""]
-    inliers: Bool[Array, "M"]
+    inliers: Bool[Array, " M"]
     result: RESULTS
 
     @property
@@ -174,10 +174,10 @@ def _apex_objective(alpha, a, b, valid, lam):
 
 
 def solve_cone_apex(
-    a: Float[Array, "M"],
-    b: Float[Array, "M"],
+    a: Float[Array, " M"],
+    b: Float[Array, " M"],
     regularization: float = DEFAULT_REGULARIZATION,
-    mask: Bool[Array, "M"] | None = None,
+    mask: Bool[Array, " M"] | None = None,
 ) -> tuple[Array, Array]:
     """Solve eq. 2: ``min_{α>0} g(α) = max_i a_i/(b_i+α) + λα``; returns ``(α, ξ)``.
 

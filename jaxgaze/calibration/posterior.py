@@ -65,7 +65,7 @@ def _points(points) -> np.ndarray:
 
 def calibration_model(
     points: Float[Array, "M 3"],
-    mask: Bool[Array, "M"] | None = None,
+    mask: Bool[Array, " M"] | None = None,
     *,
     prior_scale: float = 0.2,
     direction_concentration: float = 3.0,

@@ -170,9 +170,9 @@ class MeanShiftResult(NamedTuple):
     """Output of :func:`meanshift` for ``S`` seeds."""
 
     points: Float[Array, "S 3"]
-    field_values: Float[Array, "S"]
-    iterations: Int[Array, "S"]
-    converged: Bool[Array, "S"]
+    field_values: Float[Array, " S"]
+    iterations: Int[Array, " S"]
+    converged: Bool[Array, " S"]
 
 
 class Concurrences(NamedTuple):
@@ -263,10 +263,10 @@ class RayProjector(NamedTuple):
     offsets: Float[Array, "3N"]
     origins: Float[Array, "N 3"]
     directions: Float[Array, "N 3"]
-    bandwidth: Float[Array, "N"]
-    mask: Bool[Array, "N"]
-    exponent_scale: Float[Array, "N"]  # −1 / (2 h²)
-    weight_scale: Float[Array, "N"]  # 1 / h³, 0 for padded rays
+    bandwidth: Float[Array, " N"]
+    mask: Bool[Array, " N"]
+    exponent_scale: Float[Array, " N"]  # −1 / (2 h²)
+    weight_scale: Float[Array, " N"]  # 1 / h³, 0 for padded rays
 
 
 def ray_projector(rays: GazeRays) -> RayProjector:
@@ -462,7 +462,7 @@ def _two_stage_meanshift(rays, seeds, seed_ok, *, tol, max_iter, keep):
 
 def _concurrences_one_frame(
     rays: GazeRays,
-    seed_depths: Float[Array, "S"],
+    seed_depths: Float[Array, " S"],
     bounds: Float[Array, "2 3"],
     *,
     options: ConcurrenceOptions,

@@ -101,8 +101,9 @@ def _check_X(X, name: str) -> None:
             raise ValueError(f"{name} contains NaN or inf (first bad row: {int(np.argmax(bad))})")
 
 
-def _check_data(X, y, min_points: int = _MIN_POINTS):
-    """Validate training data; return ``(X, y)`` as arrays of a common float dtype."""
+def check_training_data(X, y, min_points: int = _MIN_POINTS):
+    """Validate training data ``X (n, d)``, ``y (n,)`` (finite, matching, at least ``min_points``
+    rows); return ``(X, y)`` as arrays of a common float dtype."""
     _check_X(X, "X")
     yshape = np.shape(y)
     if len(yshape) != 1:
@@ -252,7 +253,9 @@ def _gaussian_lml_jvp(primals, tangents):
     return value, 0.5 * jnp.vdot(W, dK) - jnp.dot(alpha, dy)
 
 
-def _lml(kernel: Kernel, X, y, jitter):
+def gaussian_log_marginal_likelihood(kernel: Kernel, X, y, jitter):
+    """(Rasmussen & Williams 2006, eq. 2.30) ``log p(y | X) = −½ yᵀK⁻¹y − ½ log|K| − (n/2) log 2π``
+    with ``K = k(X, X)`` plus the jitter; no input checks (traceable, for samplers)."""
     K, _ = _covariance(kernel, X, jitter)
     return _gaussian_lml(K, y)
 
@@ -265,7 +268,7 @@ def _lml_checked(kernel, X, y, jitter):
 
 
 @eqx.filter_jit
-def _factor(kernel: Kernel, X, y, jitter):
+def factorise(kernel: Kernel, X, y, jitter):
     """Cholesky factor, α = K⁻¹y, the log marginal likelihood and the jitter used."""
     K, j = _covariance(kernel, X, jitter)
     L = jnp.linalg.cholesky(K)
@@ -275,7 +278,9 @@ def _factor(kernel: Kernel, X, y, jitter):
 
 
 @eqx.filter_jit
-def _predict_from_factor(kernel: Kernel, X, L, alpha, X_new, full_covariance: bool):
+def predict_from_factor(kernel: Kernel, X, L, alpha, X_new, full_covariance: bool):
+    """(Rasmussen & Williams 2006, eq. 2.25–2.26) the predictive mean ``K*ᵀα`` and (co)variance
+    ``K** − VᵀV`` with ``V = L⁻¹K*``, from the Cholesky factor ``L`` and ``α = K⁻¹y``."""
     K_star = kernel(X, X_new)  # (n, n_new), no noise: different sets
     mean = K_star.T @ alpha
     V = solve_triangular(L, K_star, lower=True)
@@ -308,7 +313,7 @@ def log_marginal_likelihood(kernel: Kernel, X: Float[Array, "n D"], y: Float[Arr
     definite (under ``jit`` through ``equinox.error_if``).
     """
     _check_jitter(jitter)
-    X, y = _check_data(X, y)
+    X, y = check_training_data(X, y)
     kernel = _check_kernel(kernel, X.shape[1], X.dtype)
     value, j = _lml_checked(kernel, X, y, jitter)
     if _is_traced(value):
@@ -337,15 +342,15 @@ def predict(
     ``K**`` (see the module docstring).
     """
     _check_jitter(jitter)
-    X, y = _check_data(X, y)
+    X, y = check_training_data(X, y)
     X_new = _check_new(X_new, X)
     kernel = _check_kernel(kernel, X.shape[1], X.dtype)
-    L, alpha, value, j = _factor(kernel, X, y, jitter)
+    L, alpha, value, j = factorise(kernel, X, y, jitter)
     if _is_traced(L):
         L = eqx.error_if(L, ~jnp.all(jnp.isfinite(L)), _not_pd_message("predict", "the jitter"))
     elif not np.all(np.isfinite(np.asarray(L))):
         raise ValueError(_not_pd_message("predict", _describe_jitter(jitter, j)))
-    return _predict_from_factor(kernel, X, L, alpha, X_new, bool(full_covariance))
+    return predict_from_factor(kernel, X, L, alpha, X_new, bool(full_covariance))
 
 
 def _check_new(X_new, X):
@@ -417,7 +422,7 @@ class FittedGP(NamedTuple):
         if bool(self.result == RESULTS.not_positive_definite) or bool(self.result == RESULTS.nonfinite):
             raise ValueError(f"cannot predict from a failed fit: {self.message}")
         X_new = _check_new(X_new, self.X)
-        return _predict_from_factor(self.kernel, self.X, self.cholesky, self.alpha, X_new, bool(full_covariance))
+        return predict_from_factor(self.kernel, self.X, self.cholesky, self.alpha, X_new, bool(full_covariance))
 
 
 def _data_stats(X: np.ndarray, y: np.ndarray) -> DataStats:
@@ -462,7 +467,7 @@ def _objective(template, static, X, y, jitter, report: bool = False):
     stiffness = _WALL_STIFFNESS * X.shape[0]
 
     def fn(theta, args):
-        value = -_lml(eqx.combine(unravel(theta), static), X, y, jitter) + bound_penalty(theta, stiffness)
+        value = -gaussian_log_marginal_likelihood(eqx.combine(unravel(theta), static), X, y, jitter) + bound_penalty(theta, stiffness)
         if report:
             jax.debug.callback(_report_evaluation)
         return value
@@ -751,7 +756,7 @@ def fit(
     likelihood of each finished stage.
     """
     _check_jitter(jitter)
-    X, y = _check_data(X, y)
+    X, y = check_training_data(X, y)
     kernel = _check_kernel(kernel, X.shape[1], X.dtype)
     _check_int("num_restarts", num_restarts, 1)
     _check_int("max_steps", max_steps, 1)
@@ -794,7 +799,7 @@ def fit(
     theta_data, unravel = ravel_pytree(template)
     p = theta_data.shape[0]
     if p == 0:
-        return _finish(kernel, X, y, jitter, RESULTS.successful, jnp.zeros((0,), dtype), (), throw)
+        return fitted_gp(kernel, X, y, jitter, RESULTS.successful, jnp.zeros((0,), dtype), (), throw)
     starts = [theta_data]
     if num_restarts >= 2:
         starts.append(ravel_pytree(eqx.partition(kernel, spec)[0])[0])
@@ -840,7 +845,7 @@ def fit(
             finite = np.isfinite(values)
             if not finite.any():
                 if theta is None:
-                    return _finish(start_kernel, X, y, jitter, RESULTS.nonfinite, restart_lml, tuple(stages), throw)
+                    return fitted_gp(start_kernel, X, y, jitter, RESULTS.nonfinite, restart_lml, tuple(stages), throw)
                 result = RESULTS.optimiser_failed
                 continue
             best = int(np.argmin(np.where(finite, values, np.inf)))
@@ -857,11 +862,14 @@ def fit(
         bar.close()
 
     fitted = eqx.combine(unravel(theta), static)
-    return _finish(fitted, X, y, jitter, result, restart_lml, tuple(stages), throw)
+    return fitted_gp(fitted, X, y, jitter, result, restart_lml, tuple(stages), throw)
 
 
-def _finish(kernel, X, y, jitter, result, restart_lml, stages, throw) -> FittedGP:
-    L, alpha, value, j = _factor(kernel, X, y, jitter)
+def fitted_gp(kernel, X, y, jitter, result, restart_lml, stages, throw) -> FittedGP:
+    """A :class:`FittedGP` for ``kernel`` on ``(X, y)``: its Cholesky factor, ``α`` and log
+    marginal likelihood, with ``result`` (a :data:`~jaxgaze.results.RESULTS` item; a
+    non-finite factor becomes ``not_positive_definite``); raises when ``throw`` and it failed."""
+    L, alpha, value, j = factorise(kernel, X, y, jitter)
     if not np.all(np.isfinite(np.asarray(L))) and not bool(result == RESULTS.nonfinite):
         result = RESULTS.not_positive_definite
     fitted = FittedGP(

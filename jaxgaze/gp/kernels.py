@@ -220,7 +220,7 @@ def _natural_value(name: str) -> property:
     return property(lambda self: self._natural(name), doc=f"natural value of ``{name}``")
 
 
-class _Parametrised(Kernel):
+class Parametrised(Kernel):
     """Leaf kernel with positive parameters stored as ``raw_<name>`` fields."""
 
     #: names of the positive parameters, in order.
@@ -293,7 +293,7 @@ class _Parametrised(Kernel):
         return new
 
 
-class Constant(_Parametrised):
+class Constant(Parametrised):
     """``k(x, y) = σ²`` (scikit-learn's ``ConstantKernel``): a constant offset, or a scale in products."""
 
     PARAMETERS: ClassVar[tuple[str, ...]] = ("variance",)
@@ -314,7 +314,7 @@ class Constant(_Parametrised):
         return self._with(variance=variance)
 
 
-class RBF(_Parametrised):
+class RBF(Parametrised):
     """Squared exponential ``k(x, y) = σ² exp(−½ Σ_d (x_d − y_d)² / ℓ_d²)`` (ARD if ℓ is a vector)."""
 
     PARAMETERS: ClassVar[tuple[str, ...]] = ("variance", "lengthscale")
@@ -341,7 +341,7 @@ class RBF(_Parametrised):
         return self._with(variance=variance, lengthscale=ls)
 
 
-class RationalQuadratic(_Parametrised):
+class RationalQuadratic(Parametrised):
     """``k(x, y) = σ² (1 + r² / (2 α))^(−α)`` with ``r² = Σ_d (x_d − y_d)² / ℓ_d²``.
 
     A scale mixture of RBFs (Rasmussen & Williams eq. 4.19); α → ∞ gives the RBF.
@@ -377,7 +377,7 @@ class RationalQuadratic(_Parametrised):
         return self._with(variance=variance, lengthscale=ls, alpha=1.0)
 
 
-class ArcSine(_Parametrised):
+class ArcSine(Parametrised):
     """Williams' neural-network kernel (GPy ``MLP``, GPML ``covNN``).
 
     ``k(x, y) = σ² (2/π) asin( (xᵀΣy + σb²) / sqrt((xᵀΣx + σb² + 1)(yᵀΣy + σb² + 1)) )``
@@ -426,7 +426,7 @@ class ArcSine(_Parametrised):
         return self._with(variance=variance, weight_variance=w, bias_variance=1.0)
 
 
-class Linear(_Parametrised):
+class Linear(Parametrised):
     """Dot-product kernel ``k(x, y) = σb² + Σ_d σ_d² x_d y_d``.
 
     ``Linear(variance=1, bias_variance=σ0², fixed=("variance",))`` is
@@ -459,7 +459,7 @@ class Linear(_Parametrised):
         return self._with(variance=v, bias_variance=max(stats.y_mean_sq, 0.1 * variance))
 
 
-class White(_Parametrised):
+class White(Parametrised):
     """Independent noise: σ² on the diagonal of ``k(X)`` only (scikit-learn's ``WhiteKernel``).
 
     ``evaluate`` is 0 (no covariance between distinct evaluations, nor between

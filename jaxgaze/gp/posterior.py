@@ -26,7 +26,7 @@ import numpyro
 import numpyro.distributions as dist
 from jaxtyping import Array, Float
 
-from jaxgaze.gp.exact import FittedGP, _check_data, _factor, _lml, _predict_from_factor
+from jaxgaze.gp.exact import FittedGP, check_training_data, factorise, gaussian_log_marginal_likelihood, predict_from_factor
 from jaxgaze.gp.kernels import Kernel
 from jaxgaze.gp.transforms import positive
 from jaxgaze.nuts import quiet_single_chain, sample_nuts
@@ -63,7 +63,7 @@ def hyperparameter_model(X, y, prior_loc, prior_scale, *, static, treedef, names
         numpyro.deterministic(name, positive(raw))
         raws.append(raw)
     kernel = eqx.combine(jax.tree_util.tree_unflatten(treedef, raws), static)
-    numpyro.factor("log_marginal_likelihood", _lml(kernel, X, y, None))
+    numpyro.factor("log_marginal_likelihood", gaussian_log_marginal_likelihood(kernel, X, y, None))
 
 
 @functools.lru_cache(maxsize=32)
@@ -111,8 +111,8 @@ class HyperparameterPosterior(NamedTuple):
 def _mixture_parts(params, static, X, y, X_new):
     def one(p):
         kernel = eqx.combine(p, static)
-        L, alpha, _, _ = _factor(kernel, X, y, None)
-        return _predict_from_factor(kernel, X, L, alpha, X_new, False)
+        L, alpha, _, _ = factorise(kernel, X, y, None)
+        return predict_from_factor(kernel, X, L, alpha, X_new, False)
 
     return jax.lax.map(one, params)
 
@@ -140,7 +140,7 @@ def sample_hyperparameter_posterior(
     """
     import arviz as az
 
-    X, y = _check_data(X, y)
+    X, y = check_training_data(X, y)
     if not (np.isfinite(prior_scale) and prior_scale > 0):
         raise ValueError(f"prior_scale must be positive, got {prior_scale!r}")
     if isinstance(start, FittedGP):

@@ -63,10 +63,10 @@ class GazePrediction(NamedTuple):
     baseline has no variances (``None``).
     """
 
-    direction: Float[Array, "T"]
-    depth: Float[Array, "T"]
-    direction_variance: Float[Array, "T"] | None = None
-    depth_variance: Float[Array, "T"] | None = None
+    direction: Float[Array, " T"]
+    depth: Float[Array, " T"]
+    direction_variance: Float[Array, " T"] | None = None
+    depth_variance: Float[Array, " T"] | None = None
 
 
 def _check_training_data(features, direction, depth):
@@ -120,8 +120,8 @@ class GazeRegression(NamedTuple):
 
 def fit_gaze_regression(
     features: Float[Array, "T D"],
-    direction: Float[Array, "T"],
-    depth: Float[Array, "T"],
+    direction: Float[Array, " T"],
+    depth: Float[Array, " T"],
     *,
     key,
     ard: bool = False,

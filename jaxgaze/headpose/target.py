@@ -181,8 +181,8 @@ def _ray_to_row(h, d, y, max_length):
 
 def target_point(
     head_centre: Float[Array, "T 2"],
-    direction: Float[Array, "T"],
-    depth_y: Float[Array, "T"],
+    direction: Float[Array, " T"],
+    depth_y: Float[Array, " T"],
     *,
     max_length: float = MAX_LENGTH_PX,
 ) -> Float[Array, "T 2"]:
@@ -214,11 +214,11 @@ def target_point(
 
 def reaches_row(
     head_centre: Float[Array, "T 2"],
-    direction: Float[Array, "T"],
-    depth_y: Float[Array, "T"],
+    direction: Float[Array, " T"],
+    depth_y: Float[Array, " T"],
     *,
     max_length: float = MAX_LENGTH_PX,
-) -> Bool[Array, "T"]:
+) -> Bool[Array, " T"]:
     """True where :func:`target_point` lies on the row ``depth_y`` (the ray reaches it within ``max_length``)."""
     h, d, y = _check_target_inputs(head_centre, direction, depth_y, max_length)
     return _ray_to_row(h, d, y, max_length)[3]
@@ -231,16 +231,16 @@ def reaches_row(
 class PooledLabels(NamedTuple):
     """Labels pooled over bins: the bin's label if all its frames share it, else −1 (and not valid)."""
 
-    labels: Int[np.ndarray, "B"]
-    valid: Bool[np.ndarray, "B"]
+    labels: Int[np.ndarray, " B"]
+    valid: Bool[np.ndarray, " B"]
 
 
 class Pooled(NamedTuple):
     """Pooled values ``(B, ...)``, which bins are valid, and the pooled labels (or None)."""
 
     values: Float[np.ndarray, "B ..."]
-    valid: Bool[np.ndarray, "B"]
-    labels: Int[np.ndarray, "B"] | None
+    valid: Bool[np.ndarray, " B"]
+    labels: Int[np.ndarray, " B"] | None
 
 
 def _check_window(window) -> int:
@@ -251,7 +251,7 @@ def _check_window(window) -> int:
     return int(window)
 
 
-def pool_labels(labels: Int[Array, "T"], window: int) -> PooledLabels:
+def pool_labels(labels: Int[Array, " T"], window: int) -> PooledLabels:
     """Pool per-frame labels into ``B = T // window`` bins of ``window`` consecutive frames.
 
     A bin is valid when all its frames carry one label (the experimenter looked
@@ -275,7 +275,7 @@ def pool(
     values: Float[Array, "T ..."],
     window: int,
     *,
-    labels: Int[Array, "T"] | None = None,
+    labels: Int[Array, " T"] | None = None,
     circular: bool = False,
 ) -> Pooled:
     """Average ``values`` over bins of ``window`` consecutive frames (T-CYB: 4 at 10 fps; CogSci: 5 at 25 fps).
@@ -326,13 +326,13 @@ class TargetRates(NamedTuple):
         overall: ``Σ hits / Σ counts`` over all frames.
     """
 
-    per_object: Float[np.ndarray, "K"]
-    hits: Int[np.ndarray, "K"]
-    counts: Int[np.ndarray, "K"]
+    per_object: Float[np.ndarray, " K"]
+    hits: Int[np.ndarray, " K"]
+    counts: Int[np.ndarray, " K"]
     mean: float
     overall: float
 
-    def group(self, objects: Bool[Array, "K"]) -> float:
+    def group(self, objects: Bool[Array, " K"]) -> float:
         """``Σ hits / Σ counts`` over the objects in the mask (e.g. the CogSci near/far groups)."""
         m = np.asarray(objects)
         if m.dtype != bool or m.shape != self.counts.shape:
@@ -370,7 +370,7 @@ def _targets(target, n: int, K: int, valid) -> tuple[np.ndarray, np.ndarray]:
     return np.clip(t, 0, K - 1), v
 
 
-def q1(points: Float[Array, "N 2"], boxes: Float[Array, "K 4"], target: Int[Array, "N"], *, valid=None) -> TargetRates:
+def q1(points: Float[Array, "N 2"], boxes: Float[Array, "K 4"], target: Int[Array, " N"], *, valid=None) -> TargetRates:
     """T-CYB eq. 14: per object, the fraction of its frames whose point lies in its box (edges included).
 
     Args:
@@ -387,7 +387,7 @@ def q1(points: Float[Array, "N 2"], boxes: Float[Array, "K 4"], target: Int[Arra
     return _rates(hit, t, v, b.shape[0])
 
 
-def q2(points: Float[Array, "N 2"], centres: Float[Array, "K 2"], target: Int[Array, "N"], *, valid=None) -> TargetRates:
+def q2(points: Float[Array, "N 2"], centres: Float[Array, "K 2"], target: Int[Array, " N"], *, valid=None) -> TargetRates:
     """T-CYB eq. 15: per object, the fraction of its frames whose nearest object centre is its own.
 
     Strict: a point equally near another centre is a miss. Arguments as in :func:`q1`.
@@ -408,7 +408,7 @@ def q2(points: Float[Array, "N 2"], centres: Float[Array, "K 2"], target: Int[Ar
 # Angular metrics (CogSci)
 
 
-def angular_errors(estimated: Float[Array, "N"], true: Float[Array, "N"]) -> Float[np.ndarray, "N"]:
+def angular_errors(estimated: Float[Array, " N"], true: Float[Array, " N"]) -> Float[np.ndarray, " N"]:
     """Wrapped differences ``estimated − true`` in [−π, π] (radians)."""
     e = _host("estimated", estimated)
     t = _host("true", true)
@@ -417,7 +417,7 @@ def angular_errors(estimated: Float[Array, "N"], true: Float[Array, "N"]) -> Flo
     return wrap_angle(e - t)
 
 
-def mean_angular_deviation(estimated: Float[Array, "N"], true: Float[Array, "N"], *, valid=None) -> float:
+def mean_angular_deviation(estimated: Float[Array, " N"], true: Float[Array, " N"], *, valid=None) -> float:
     """CogSci Q1: mean of ``|wrap(estimated − true)|`` (radians) over the (valid) frames."""
     err = angular_errors(estimated, true).reshape(-1)
     v = _valid_mask(valid, err.shape[0])
@@ -497,9 +497,9 @@ def disk_hits_box(
 
 def cone_rates(
     head_centre: Float[Array, "N 2"],
-    direction: Float[Array, "N"],
+    direction: Float[Array, " N"],
     boxes: Float[Array, "K 4"],
-    target: Int[Array, "N"],
+    target: Int[Array, " N"],
     *,
     tolerance: float = TOLERANCE,
     valid=None,
@@ -518,7 +518,7 @@ def cone_rates(
 def disk_rates(
     points: Float[Array, "N 2"],
     boxes: Float[Array, "K 4"],
-    target: Int[Array, "N"],
+    target: Int[Array, " N"],
     *,
     mask_radius: float = MASK_RADIUS_PX,
     valid=None,
@@ -531,7 +531,7 @@ def disk_rates(
     return _rates(disk_hits_box(p, b[t], mask_radius), t, v, b.shape[0])
 
 
-def cmc_curve(angular_errors: Float[Array, "N"], thresholds: Float[Array, "M"]) -> Float[np.ndarray, "M"]:
+def cmc_curve(angular_errors: Float[Array, " N"], thresholds: Float[Array, " M"]) -> Float[np.ndarray, " M"]:
     """CogSci Fig. 5: accuracy ``mean(|wrap(error)| ≤ τ)`` for each threshold ``τ ≥ 0`` (radians).
 
     Non-decreasing in τ and 1 for ``τ ≥ π``. Raises on NaN, empty errors or negative thresholds.

@@ -32,7 +32,7 @@ File format (``"format": "jaxgaze.gaze_regression"``, ``"version": 1``)::
            "train_indices": [...], "validation_indices": [...]}
 
 Kernels are rebuilt through a registry of kernel classes (:data:`KERNEL_TYPES`;
-add your own ``_Parametrised`` kernels with :func:`register_kernel`): a leaf is
+add your own ``Parametrised`` kernels with :func:`register_kernel`): a leaf is
 constructed from its natural ``parameters`` and ``fixed`` names, then its
 unconstrained ``raw`` values (when present) are put back exactly. Numbers are
 written with Python's shortest round-trip ``repr``, so float64 values survive
@@ -57,7 +57,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgaze.gp.exact import FittedGP, _finish
+from jaxgaze.gp.exact import FittedGP, fitted_gp
 from jaxgaze import results
 from jaxgaze.gp.kernels import (
     RBF,
@@ -69,7 +69,7 @@ from jaxgaze.gp.kernels import (
     RationalQuadratic,
     Sum,
     White,
-    _Parametrised,
+    Parametrised,
 )
 from jaxgaze.headpose.nn import MLPFit, MLPParams, Standardisation
 from jaxgaze.headpose.regression import GazeRegression, NNGazeRegression, Scaling
@@ -82,7 +82,7 @@ __all__ = ["FORMAT", "VERSION", "KERNEL_TYPES", "ModelFileError", "register_kern
 FORMAT = "jaxgaze.gaze_regression"
 VERSION = 1
 
-#: Leaf kernels by name (``_Parametrised`` subclasses: positive parameters ``PARAMETERS``).
+#: Leaf kernels by name (``Parametrised`` subclasses: positive parameters ``PARAMETERS``).
 KERNEL_TYPES: dict[str, type] = {cls.__name__: cls for cls in (Constant, RBF, RationalQuadratic, ArcSine, Linear,
                                                                 White)}
 _COMBINATIONS = {"Sum": Sum, "Product": Product}
@@ -93,10 +93,10 @@ class ModelFileError(InputFileError):
 
 
 def register_kernel(cls: type) -> type:
-    """Make a leaf kernel class (a ``_Parametrised`` subclass whose constructor takes its
+    """Make a leaf kernel class (a ``Parametrised`` subclass whose constructor takes its
     ``PARAMETERS`` by name and ``fixed=``) savable and loadable; returns ``cls`` (a decorator)."""
-    if not (isinstance(cls, type) and issubclass(cls, _Parametrised)):
-        raise TypeError(f"only leaf kernels with positive parameters (_Parametrised subclasses) can be registered, "
+    if not (isinstance(cls, type) and issubclass(cls, Parametrised)):
+        raise TypeError(f"only leaf kernels with positive parameters (Parametrised subclasses) can be registered, "
                         f"got {cls!r}")
     if cls.__name__ in _COMBINATIONS:
         raise ValueError(f"kernel name {cls.__name__!r} is reserved")
@@ -253,7 +253,7 @@ class _Reader:
         Xj, yj = jnp.asarray(X, self.dtype), jnp.asarray(y, self.dtype)
         # The Cholesky factor as fit() leaves it; the jitter as an array, so that one
         # compiled factorisation serves every jitter value.
-        fitted = _finish(kernel, Xj, yj, jnp.asarray(jitter, self.dtype), result,
+        fitted = fitted_gp(kernel, Xj, yj, jnp.asarray(jitter, self.dtype), result,
                          jnp.asarray(restart_values, self.dtype), stage_tuples, False)
         if bool((result == results.RESULTS.successful) | (result == results.RESULTS.max_steps_reached)) and not np.all(
                 np.isfinite(np.asarray(fitted.cholesky))):

@@ -42,23 +42,19 @@ def stack_rays(frames: Sequence[int], persons: Sequence[str], origins, direction
                path) -> RayRecording:
     """One ray per row (frame, person, origin (3,), direction (3,), bandwidth) → a :class:`RayRecording`.
 
-    Rows keep their order within a frame; frames are sorted. Each frame is a
-    :class:`GazeRays` and :meth:`GazeRays.stack` pads them; its ``ValueError`` becomes
-    an :class:`InputFileError` naming ``path``.
+    Rows keep their order within a frame; frames are sorted; :meth:`GazeRays.from_rows`
+    pads them. Its ``ValueError`` becomes an :class:`InputFileError` naming ``path``.
     """
-    origins, directions = np.asarray(origins, np.float64), np.asarray(directions, np.float64)
-    bandwidth = np.broadcast_to(np.asarray(bandwidth, np.float64), (len(frames),))
+    if len(frames) == 0:
+        raise InputFileError("no gaze rays", path)
     rows_of: dict[int, list[int]] = {}
     for i, frame in enumerate(frames):
         rows_of.setdefault(int(frame), []).append(i)
-    if not rows_of:
-        raise InputFileError("no gaze rays", path)
-    frame_ids = sorted(rows_of)
     try:
-        rays = GazeRays.stack([GazeRays(origins[rows_of[f]], directions[rows_of[f]], bandwidth[rows_of[f]])
-                               for f in frame_ids])
+        frame_array, rays = GazeRays.from_rows(np.asarray(frames, dtype=np.int64), origins, directions, bandwidth)
     except ValueError as error:
         raise InputFileError(str(error), path) from None
+    frame_ids = [int(f) for f in frame_array]
     return RayRecording(frame_ids, [[persons[i] for i in rows_of[f]] for f in frame_ids], rays)
 
 

@@ -44,7 +44,7 @@ class Pool:
         return jnp.clip(jnp.floor(u), low, high - 1).astype(jnp.int32)
 
 
-def smooth(pool: Pool, times: Float[Array, "T"], shape: tuple[int, ...], periods=(4.0, 16.0), components: int = 3):
+def smooth(pool: Pool, times: Float[Array, " T"], shape: tuple[int, ...], periods=(4.0, 16.0), components: int = 3):
     """Smooth random signal in ``[−1, 1]`` of shape ``(T, *shape)``.
 
     A sum of ``components`` sinusoids with random periods (seconds), phases and

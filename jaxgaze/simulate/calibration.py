@@ -126,14 +126,14 @@ class CalibrationSession(NamedTuple):
     centers_a: Float[Array, "T 3"]
     R_camera_from_world_b: Float[Array, "T 3 3"]
     centers_b: Float[Array, "T 3"]
-    frame_ids: Int[Array, "T"]
+    frame_ids: Int[Array, " T"]
     eye_center_a: Float[Array, "3"]
     direction_a: Float[Array, "3"]
     eye_center_b: Float[Array, "3"]
     direction_b: Float[Array, "3"]
     eye_in_head: float
-    outlier_a: Bool[Array, "T"]
-    outlier_b: Bool[Array, "T"]
+    outlier_a: Bool[Array, " T"]
+    outlier_b: Bool[Array, " T"]
     true_R_camera_from_world_a: Float[Array, "T 3 3"]
     true_centers_a: Float[Array, "T 3"]
     true_R_camera_from_world_b: Float[Array, "T 3 3"]
@@ -272,7 +272,7 @@ def _head_rotations(centers, eye, direction, z, u, roll, outlier, eye_in_head):
     return jnp.einsum("tij,tkj->tik", frame_cam, frame_world)
 
 
-def _outlier_mask(u: Float[Array, "T"], fraction) -> Bool[Array, "T"]:
+def _outlier_mask(u: Float[Array, " T"], fraction) -> Bool[Array, " T"]:
     """Exactly ``round(fraction · T)`` frames, chosen uniformly at random."""
     count = jnp.round(fraction * u.shape[0]).astype(jnp.int32)
     threshold = jnp.sort(u)[jnp.clip(count - 1, 0, u.shape[0] - 1)]

@@ -284,7 +284,7 @@ class DyadicRecording(NamedTuple):
     gaze_angles: Float[Array, "P T 2"]
     bias: Float[Array, "P 2"]
     object_positions: Float[Array, "P K 3"]
-    head_fraction: Float[Array, "P"]
+    head_fraction: Float[Array, " P"]
     fps: float
     preset: str
     config: DyadicConfig
@@ -298,7 +298,7 @@ class DyadicRecording(NamedTuple):
         return self.speaking.shape[-2]
 
     @property
-    def times(self) -> Float[Array, "T"]:
+    def times(self) -> Float[Array, " T"]:
         """Frame times in seconds, ``t / fps``."""
         return jnp.arange(self.num_frames) / self.fps
 
@@ -436,7 +436,7 @@ def _num_segments(duration: float, config: DyadicConfig) -> int:
     return int(math.ceil((duration + config.fixation_s[1]) / config.fixation_s[0])) + 2
 
 
-def _causal_filter(x: Float[Array, "... T"], weights: Float[Array, "L"]) -> Float[Array, "... T"]:
+def _causal_filter(x: Float[Array, "... T"], weights: Float[Array, " L"]) -> Float[Array, "... T"]:
     """``y[t] = Σ_k w_k x[t − k]``, with ``x`` held at ``x[0]`` before the start."""
     L = weights.shape[0]
     if L == 1:

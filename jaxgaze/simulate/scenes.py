@@ -129,14 +129,14 @@ class Scene(NamedTuple):
     concurrences: Float[Array, "T M 3"]
     concurrence_valid: Bool[Array, "T M"]
     focus: Int[Array, "T N"]
-    phase: Int[Array, "T"]
+    phase: Int[Array, " T"]
     name: str
     eye_in_head: float
     head_noise: float
     fps: float
 
     @property
-    def true_count(self) -> Int[Array, "T"]:
+    def true_count(self) -> Int[Array, " T"]:
         """Number of true concurrences per frame."""
         return jnp.sum(self.concurrence_valid, axis=-1)
 
@@ -212,7 +212,7 @@ class _Layout(NamedTuple):
     origins: Float[Array, "T N 3"]  # eye centres
     foci: Float[Array, "T M 3"]  # points that may be looked at
     focus: Int[Array, "T N"]  # which focus each person looks at
-    phase: Int[Array, "T"]
+    phase: Int[Array, " T"]
 
 
 def _pool_size(num_frames: int) -> int:
@@ -229,7 +229,7 @@ def _staggered_phase(pool: Pool, num_frames: int, fractions, num_people: int, st
     return jnp.sum(t >= starts[None], axis=-1).astype(jnp.int32)
 
 
-def _nominal_phase(num_frames: int, fractions) -> Int[Array, "T"]:
+def _nominal_phase(num_frames: int, fractions) -> Int[Array, " T"]:
     bounds = jnp.round(jnp.asarray(fractions) * num_frames).astype(jnp.int32)
     return jnp.sum(jnp.arange(num_frames)[:, None] >= bounds[None], axis=-1).astype(jnp.int32)
 

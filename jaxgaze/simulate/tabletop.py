@@ -262,16 +262,16 @@ class TabletopSession(NamedTuple):
     head_position_optical: Float[Array, "T 3"]
     head_centre_image: Float[Array, "T 2"]
     gaze_angles: Float[Array, "T 2"]
-    target: Int[Array, "T"]
+    target: Int[Array, " T"]
     object_centres_optical: Float[Array, "K 3"]
     object_centres_image: Float[Array, "K 2"]
     object_boxes_image: Float[Array, "K 4"]
-    object_sizes_m: Float[Array, "K"]
-    gaze_direction_image: Float[Array, "T"]
-    target_depth_image: Float[Array, "T"]
-    head_direction_image: Float[Array, "T"]
-    object_is_near: Bool[Array, "K"]
-    object_is_central: Bool[Array, "K"]
+    object_sizes_m: Float[Array, " K"]
+    gaze_direction_image: Float[Array, " T"]
+    target_depth_image: Float[Array, " T"]
+    head_direction_image: Float[Array, " T"]
+    object_is_near: Bool[Array, " K"]
+    object_is_central: Bool[Array, " K"]
     R_optical_from_frontal: Float[Array, "3 3"]
     head_rest_optical: Float[Array, "3"]
     focal_px: float
@@ -286,7 +286,7 @@ class TabletopSession(NamedTuple):
         return int(self.object_centres_optical.shape[0])
 
     @property
-    def times(self) -> Float[Array, "T"]:
+    def times(self) -> Float[Array, " T"]:
         """Frame times in seconds, ``t / fps``."""
         return jnp.arange(self.num_frames) / self.fps
 

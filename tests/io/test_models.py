@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxgaze.gp.exact import _finish
+from jaxgaze.gp.exact import fitted_gp
 from jaxgaze.io.models import (
     FORMAT,
     VERSION,
@@ -29,7 +29,7 @@ from jaxgaze.results import RESULTS
 def _gp(kernel, X, y):
     """A FittedGP at the given hyperparameters (no optimisation: the tests need the file format, not a fit)."""
     dtype = jnp.asarray(np.zeros(1)).dtype
-    return _finish(kernel, jnp.asarray(X, dtype), jnp.asarray(y, dtype), None, RESULTS.successful,
+    return fitted_gp(kernel, jnp.asarray(X, dtype), jnp.asarray(y, dtype), None, RESULTS.successful,
                    jnp.asarray([-10.5, np.nan], dtype), ((40, "float32", 7), (len(X), "float64", 3)), False)
 
 
