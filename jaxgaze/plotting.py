@@ -23,7 +23,7 @@ from matplotlib.patches import Ellipse
 from jaxgaze.cone import max_intensity_projection, saliency_field_grid
 from jaxgaze.rays import GazeRays
 
-__all__ = ["plot_top_view", "plot_trajectories", "plot_counts", "top_view_bounds", "ELLIPSE_LEVEL"]
+__all__ = ["plot_top_view", "plot_trajectories", "plot_counts", "plot_scene_story", "top_view_bounds", "ELLIPSE_LEVEL"]
 
 #: Probability mass inside the drawn covariance ellipses.
 ELLIPSE_LEVEL = 0.9
@@ -290,4 +290,27 @@ def plot_counts(counts, true_counts=None, ax=None, *, fps=None, title=None):
         ax.legend(fontsize="small", loc="best")
     elif title is not None:
         ax.set_title(title)
+    return fig
+
+
+def plot_scene_story(scene, concurrences, tracks) -> Figure:
+    """One figure for a simulated recording with truth (a :class:`jaxgaze.simulate.Scene`): the
+    top view of the middle frame of every phase of its story, the trajectories and the counts."""
+    truth, truth_valid, phase = (np.asarray(x) for x in (scene.concurrences, scene.concurrence_valid, scene.phase))
+    shown = [(int(p), int(np.flatnonzero(phase == p)[np.sum(phase == p) // 2])) for p in dict.fromkeys(phase.tolist())]
+    lower, upper = top_view_bounds(scene.rays, truth.reshape(-1, 3), margin=0.6)
+    width = max(len(shown), 2)
+    fig = Figure(figsize=(4.6 * width, 8.6), layout="constrained")
+    grid = fig.add_gridspec(2, width * 2)
+    for i, (p, t) in enumerate(shown):
+        one = concurrences.frame(t)
+        plot_top_view(scene.rays[t], one, truth=truth[t][truth_valid[t]], ax=fig.add_subplot(grid[0, 2 * i:2 * i + 2]),
+                      extent=(lower[0], upper[0], lower[1], upper[1]), z_range=(lower[2], upper[2]),
+                      grid_shape=(96, 64, 24), colorbar=True,
+                      title=f"phase {p}: frame {t} (t = {t / scene.fps:.1f} s)\n"
+                            f"K = {len(one.locations)}, true K = {int(truth_valid[t].sum())}")
+    plot_trajectories(concurrences, tracks, ax=fig.add_subplot(grid[1, :width]), fps=scene.fps)
+    plot_counts(np.asarray(concurrences.count), np.asarray(scene.true_count), ax=fig.add_subplot(grid[1, width:]),
+                fps=scene.fps)
+    fig.suptitle(f"jaxgaze demo: simulated '{scene.name}' scene, {scene.num_frames} frames, {scene.num_people} people")
     return fig

@@ -78,68 +78,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
-class _VideoRegression:
-    """The loaded regression as :func:`~jaxgaze.vision.attend.attend_frames` uses it: ``predict`` in
-    float64 (the tracker runs in float32, so x64 is not switched on globally), with the depth row
-    ``f2`` (and its variance) scaled from the model's training images to the video's by ``k``."""
-
-    def __init__(self, regression, k: float):
-        self.regression, self.k = regression, float(k)
-
-    @property
-    def features(self):
-        features = getattr(self.regression, "features", None)
-        if features is not None:
-            return features
-        import numpy as np
-
-        from jaxgaze.headpose.regression import Scaling
-
-        width = self.regression.direction_net.params.W1.shape[0]  # the NN baseline scales its own inputs
-        return Scaling(np.zeros(width), np.ones(width))
-
-    def predict(self, features):
-        import jax
-        import numpy as np
-
-        from jaxgaze.headpose.regression import GazePrediction
-
-        with jax.enable_x64(True):
-            p = self.regression.predict(np.asarray(features, np.float64))
-            d, y = np.asarray(p.direction, np.float64), np.asarray(p.depth, np.float64)
-            vd = None if p.direction_variance is None else np.asarray(p.direction_variance, np.float64)
-            vy = None if p.depth_variance is None else np.asarray(p.depth_variance, np.float64)
-        return GazePrediction(d, y * self.k, vd, None if vy is None else vy * self.k ** 2)
-
-
-class _Frames:
-    """The frames of VIDEO, read lazily each time it is iterated."""
-
-    def __init__(self, path: str, max_frames):
-        self.path, self.max_frames = path, max_frames
-
-    def __iter__(self):
-        from jaxgaze.io.video import iter_frames
-
-        return iter_frames(self.path, max_frames=self.max_frames)
-
-
-class _CountedFrames(_Frames):
-    def __init__(self, path: str, max_frames, count: int):
-        super().__init__(path, max_frames)
-        self.count = count
-
-    def __len__(self) -> int:
-        return self.count
-
-
 def run(args) -> int:
     import jax
     import numpy as np
 
     from jaxgaze.io.attend import write_attend_csv
     from jaxgaze.io.models import load_gaze_regression, metadata_image_size, metadata_number
-    from jaxgaze.io.video import frame_count, iter_frames, video_fps
+    from jaxgaze.headpose.regression import RescaledRegression
+    from jaxgaze.io.video import VideoFrames, frame_count, iter_frames, video_fps
     from jaxgaze.vision.attend import attend_frames
 
     progress = (not args.quiet and args.progress) if args.progress is not None else show_progress(args)
@@ -171,9 +117,9 @@ def run(args) -> int:
     for note in notes:
         warn(note)
 
-    frames = _CountedFrames(args.video, args.max_frames, count) if count else _Frames(args.video, args.max_frames)
+    frames = VideoFrames(args.video, max_frames=args.max_frames, count=count or None)
     try:
-        windows = attend_frames(frames, _VideoRegression(regression, scale), focal_px=focal, window=window,
+        windows = attend_frames(frames, RescaledRegression(regression, scale), focal_px=focal, window=window,
                                 method=args.method, initial_box=args.initial_box, progress=progress)
     except InputFileError:  # a VideoFileError while reading the frames
         raise

@@ -41,30 +41,10 @@ def _figure_format(path: str) -> str:
 
 
 def _write_figure(scene, concurrences, tracks, fmt: str, path: str) -> None:
-    """Top views of the middle frame of every phase of the story, the trajectories and the counts."""
-    import numpy as np
-    from matplotlib.figure import Figure
-
     from jaxgaze.io.text import atomic_path
-    from jaxgaze.plotting import plot_counts, plot_top_view, plot_trajectories, top_view_bounds
+    from jaxgaze.plotting import plot_scene_story
 
-    truth, truth_valid, phase = (np.asarray(x) for x in (scene.concurrences, scene.concurrence_valid, scene.phase))
-    shown = [(int(p), int(np.flatnonzero(phase == p)[np.sum(phase == p) // 2])) for p in dict.fromkeys(phase.tolist())]
-    lower, upper = top_view_bounds(scene.rays, truth.reshape(-1, 3), margin=0.6)
-    width = max(len(shown), 2)
-    fig = Figure(figsize=(4.6 * width, 8.6), layout="constrained")
-    grid = fig.add_gridspec(2, width * 2)
-    for i, (p, t) in enumerate(shown):
-        one = concurrences.frame(t)
-        plot_top_view(scene.rays[t], one, truth=truth[t][truth_valid[t]], ax=fig.add_subplot(grid[0, 2 * i:2 * i + 2]),
-                      extent=(lower[0], upper[0], lower[1], upper[1]), z_range=(lower[2], upper[2]),
-                      grid_shape=(96, 64, 24), colorbar=True,
-                      title=f"phase {p}: frame {t} (t = {t / scene.fps:.1f} s)\n"
-                            f"K = {len(one.locations)}, true K = {int(truth_valid[t].sum())}")
-    plot_trajectories(concurrences, tracks, ax=fig.add_subplot(grid[1, :width]), fps=scene.fps)
-    plot_counts(np.asarray(concurrences.count), np.asarray(scene.true_count), ax=fig.add_subplot(grid[1, width:]),
-                fps=scene.fps)
-    fig.suptitle(f"jaxgaze demo: simulated '{scene.name}' scene, {scene.num_frames} frames, {scene.num_people} people")
+    fig = plot_scene_story(scene, concurrences, tracks)
     with writing(path, "figure"), atomic_path(path) as tmp:
         fig.savefig(tmp, format=fmt, dpi=100)
 

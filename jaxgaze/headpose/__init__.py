@@ -21,6 +21,7 @@ from jaxgaze.headpose.regression import (
     GazePrediction,
     GazeRegression,
     NNGazeRegression,
+    RescaledRegression,
     fit_gaze_regression,
     fit_gaze_regression_nn,
 )
@@ -65,6 +66,7 @@ __all__ = [
     "GazePrediction",
     "GazeRegression",
     "NNGazeRegression",
+    "RescaledRegression",
     "fit_gaze_regression",
     "fit_gaze_regression_nn",
     "MLPParams",

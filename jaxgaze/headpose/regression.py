@@ -33,8 +33,8 @@ from jaxgaze.gp.kernels import gaze_direction_kernel, target_depth_kernel
 from jaxgaze.headpose.nn import MLPFit, fit_mlp
 from jaxgaze.results import RESULTS
 
-__all__ = ["Scaling", "GazePrediction", "GazeRegression", "NNGazeRegression", "fit_gaze_regression",
-           "fit_gaze_regression_nn"]
+__all__ = ["Scaling", "GazePrediction", "GazeRegression", "NNGazeRegression", "RescaledRegression",
+           "fit_gaze_regression", "fit_gaze_regression_nn"]
 
 
 class Scaling(NamedTuple):
@@ -169,3 +169,35 @@ def fit_gaze_regression_nn(features, direction, depth, *, key, **options) -> NNG
     return NNGazeRegression(
         fit_mlp(X, jnp.asarray(f1, dtype), key=k1, **options), fit_mlp(X, jnp.asarray(f2, dtype), key=k2, **options)
     )
+
+
+class RescaledRegression:
+    """A fitted regression used on images of another size (Yücel et al. 2013, Sec. V).
+
+    ``f2`` is an image row, so on images ``scale`` times as tall as the training images
+    the prediction is ``f2' = scale · f2`` with variance ``scale² var(f2)``; ``f1`` (an
+    angle) is unchanged. :meth:`predict` runs in float64 (whatever the global precision),
+    so that a GP's Cholesky factor stays positive definite. ``features`` is the input
+    standardisation (the identity for the NN baseline, which scales its own inputs).
+    """
+
+    def __init__(self, regression, scale: float = 1.0):
+        if not (np.isfinite(scale) and scale > 0):
+            raise ValueError(f"RescaledRegression: scale must be finite and positive, got {scale}")
+        self.regression, self.scale = regression, float(scale)
+
+    @property
+    def features(self) -> Scaling:
+        features = getattr(self.regression, "features", None)
+        if features is not None:
+            return features
+        width = self.regression.direction_net.params.W1.shape[0]
+        return Scaling(np.zeros(width), np.ones(width))
+
+    def predict(self, features) -> GazePrediction:
+        with jax.enable_x64(True):
+            p = self.regression.predict(np.asarray(features, np.float64))
+            d, y = np.asarray(p.direction, np.float64), np.asarray(p.depth, np.float64)
+            vd = None if p.direction_variance is None else np.asarray(p.direction_variance, np.float64)
+            vy = None if p.depth_variance is None else np.asarray(p.depth_variance, np.float64)
+        return GazePrediction(d, y * self.scale, vd, None if vy is None else vy * self.scale**2)

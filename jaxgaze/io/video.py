@@ -34,6 +34,7 @@ __all__ = [
     "IMAGE_EXTENSIONS",
     "VIDEO_CODECS",
     "VideoFileError",
+    "VideoFrames",
     "frame_count",
     "iter_frames",
     "read_frames",
@@ -149,6 +150,22 @@ def read_frames(path, *, max_frames: int | None = None) -> list[np.ndarray]:
     """All frames (at most ``max_frames``) of a video file or image folder, as a list of
     ``(H, W, 3)`` RGB ``uint8`` arrays; see :func:`iter_frames`."""
     return list(iter_frames(path, max_frames=max_frames))
+
+
+class VideoFrames:
+    """The frames of a video or frame folder, read again each time it is iterated (so a long
+    video is never held in memory); ``len()`` is ``count`` when it is known."""
+
+    def __init__(self, path, *, max_frames: int | None = None, count: int | None = None):
+        self.path, self.max_frames, self.count = path, max_frames, count
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        return iter_frames(self.path, max_frames=self.max_frames)
+
+    def __len__(self) -> int:
+        if self.count is None:
+            raise TypeError("VideoFrames: the number of frames is not known")
+        return self.count
 
 
 def frame_count(path) -> int | None:

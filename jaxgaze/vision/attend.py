@@ -388,7 +388,10 @@ def attend_frames(
                 last.append(frame)
             yield frame
 
-    total = len(frames) if hasattr(frames, "__len__") else None
+    try:
+        total = len(frames)
+    except TypeError:  # a generator, or a lazy sequence of unknown length
+        total = None
     if total is not None and total < window:
         raise ValueError(f"frames has {total} frames, fewer than one window of {window}")
     stream = tqdm(keep(iterate_frames(frames)), total=total, desc="tracking", unit="frame", disable=not progress)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import jaxgaze as jg
-from jaxgaze.simulate.calibration import simulate_wearers
+from tests import helpers as zoo
 
 FRAMES = 300
 WEARERS = 50
@@ -51,7 +51,7 @@ def _posteriors(y, seed):
 
 @pytest.fixture(scope="module")
 def clean():
-    sessions = simulate_wearers(jax.random.key(2024), WEARERS, num_frames=FRAMES)
+    sessions = zoo.wearers(WEARERS, FRAMES, 2024)
     y, eye, direction = _points_and_truth(sessions, WEARERS)
     point, posteriors = _posteriors(y, 7)
     return eye, direction, point, posteriors
@@ -59,7 +59,7 @@ def clean():
 
 @pytest.fixture(scope="module")
 def with_outliers():
-    sessions = simulate_wearers(jax.random.key(99), OUTLIER_WEARERS, num_frames=FRAMES, outlier_fraction=0.2)
+    sessions = zoo.wearers(OUTLIER_WEARERS, FRAMES, 99, outlier_fraction=0.2)
     y, eye, direction = _points_and_truth(sessions, OUTLIER_WEARERS)
     point, posteriors = _posteriors(y, 8)
     return eye, direction, point, posteriors

@@ -19,7 +19,6 @@ import json
 import os
 import sys
 
-import jax
 import numpy as np
 import pytest
 from tests.cli.helpers import assert_failed, run_main
@@ -29,7 +28,7 @@ from jaxgaze.io.openface import R_OPENFACE_MODEL_FROM_HEAD
 from jaxgaze.bias import BIAS_FRAME_COLUMNS
 from jaxgaze.cli import main
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.simulate.dyadic import simulate_dyadic
+from tests import helpers as zoo
 
 FPS = 10.0
 DURATION_S = 60.0
@@ -113,7 +112,7 @@ def _openface_track(rec, person, directory):
 
 @pytest.fixture(scope="module")
 def dyad(tmp_path_factory):
-    rec = simulate_dyadic(jax.random.key(3), "interview", duration_s=DURATION_S, fps=FPS)
+    rec = zoo.dyad("interview", DURATION_S, fps=FPS)
     directory = tmp_path_factory.mktemp("dyad")
     p = 0
     R = np.asarray(rec.R_world_from_head[p], float)

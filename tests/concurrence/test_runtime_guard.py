@@ -16,6 +16,7 @@ import textwrap
 
 import pytest
 
+from tests import helpers as zoo
 from tests.concurrence.deadlock_tools import audit, run_until_stalled
 
 pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="the audit and the stress test use Linux processes")
@@ -103,11 +104,7 @@ def test_long_recording_never_hangs(run, compilation_cache):
 
 @pytest.fixture(scope="module")
 def short_meeting():
-    import jax
-
-    from jaxgaze.simulate import simulate_scene
-
-    return simulate_scene(jax.random.key(5), "meeting", num_frames=12).rays
+    return zoo.saliency_scene("meeting", 12, seed=5).rays
 
 
 def test_batching_does_not_change_the_concurrences(short_meeting):

@@ -15,12 +15,11 @@
 """
 
 import numpy as np
-import jax
 import pytest
 
 from jaxgaze import find_concurrences_over_frames
 from jaxgaze.concurrence.metrics import count_accuracy, coverage, localisation_errors
-from jaxgaze.simulate import simulate_scene
+from tests import helpers as zoo
 
 MOCAP_FRAMES = 480
 MEETING_FRAMES = 120  # 40 per phase
@@ -29,13 +28,13 @@ MARGIN = 5  # frames dropped on each side of a phase boundary (switches are stag
 
 @pytest.fixture(scope="module")
 def mocap():
-    scene = simulate_scene(jax.random.key(0), "mocap", MOCAP_FRAMES)
+    scene = zoo.saliency_scene("mocap", MOCAP_FRAMES)
     return scene, find_concurrences_over_frames(scene.rays)
 
 
 @pytest.fixture(scope="module")
 def meeting():
-    scene = simulate_scene(jax.random.key(0), "meeting", MEETING_FRAMES)
+    scene = zoo.saliency_scene("meeting", MEETING_FRAMES)
     return scene, find_concurrences_over_frames(scene.rays)
 
 
@@ -80,7 +79,7 @@ def test_meeting_transitions(meeting):
 
 def test_party_four_groups_then_one():
     """Party (Sec. 4.2): four groups (one of only two people) → everyone watches table tennis."""
-    scene = simulate_scene(jax.random.key(2), "party", 60)
+    scene = zoo.saliency_scene("party", 60, seed=2)
     found = find_concurrences_over_frames(scene.rays)
     phase, count, truth = np.asarray(scene.phase), np.asarray(found.count), np.asarray(scene.true_count)
     assert set(np.unique(truth[phase == 0])) >= {4} and set(np.unique(truth[phase == 1])) >= {1}
@@ -90,7 +89,7 @@ def test_party_four_groups_then_one():
 
 def test_musical_near_parallel_rays_stretch_along_the_view():
     """Musical (Sec. 5): near-parallel rays give a mode whose covariance is long along the rays."""
-    scene = simulate_scene(jax.random.key(3), "musical", 20)
+    scene = zoo.saliency_scene("musical", 20, seed=3)
     found = find_concurrences_over_frames(scene.rays)
     assert count_accuracy(found.count, scene.true_count) >= 0.9
     assert np.all(np.isfinite(np.asarray(found.covariances)))

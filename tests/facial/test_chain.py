@@ -9,8 +9,8 @@ import pytest
 from jaxgaze.facial.chain import run_chain, sweep_threshold, tune_threshold
 from jaxgaze.facial.gmm import localize_point, pixel_coordinates
 from jaxgaze.facial.metrics import normalized_deviation
-from jaxgaze.simulate.faces import simulate_faces
 from jaxgaze.facial.spatial import best_configuration, fit_spatial_model
+from tests import helpers as zoo
 
 SHAPE = (24, 30)  # one map shape for all GMM tests: one compilation
 _localize = jax.jit(localize_point)
@@ -25,13 +25,13 @@ def _blobs(shape, centres, amps, sd=2.0):
 
 @pytest.fixture(scope="module")
 def model():
-    train = simulate_faces(jax.random.key(1), 1000)
+    train = zoo.faces(1, 1000)
     return fit_spatial_model(train.features_image, train.visible)
 
 
 @pytest.fixture(scope="module")
 def pool():
-    return simulate_faces(jax.random.key(2), 600, num_hypotheses=H)
+    return zoo.faces(2, 600, num_hypotheses=H)
 
 
 # ---------------------------------------------------------------- GMM

@@ -20,6 +20,7 @@ from jaxgaze.facial.orientation import (
     to_gaze_rays,
 )
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
+from tests import helpers as zoo
 
 F = 800.0
 C = (320.0, 240.0)
@@ -338,12 +339,11 @@ def test_shape_sd_makes_intervals_cover_the_simulated_faces():
     with ``shape_sd = FACE_SHAPE_SD`` the 90 % intervals of both estimators cover
     85–97 % of the true yaw and pitch on frontal faces; without it PnP's residual-based
     σ under-covers."""
-    from jaxgaze.simulate.faces import simulate_faces
     from jaxgaze.facial.face_model import FACE_SHAPE_SD
     from jaxgaze.simulate.faces import FOCAL_PX, IMAGE_HEIGHT, IMAGE_WIDTH
 
     pp = (IMAGE_WIDTH / 2, IMAGE_HEIGHT / 2)
-    faces = simulate_faces(jax.random.key(5), 400, view="frontal")
+    faces = zoo.faces(5, 400, view="frontal")
     z = {"pnp": [], "gc": [], "pnp_residual": []}
     for i in range(400):
         p = faces.points_image[i]

@@ -15,11 +15,12 @@ from jaxgaze.facial.spatial import (
     independent_detectors,
     selected_positions,
 )
+from tests import helpers as zoo
 
 
 @pytest.fixture(scope="module")
 def model():
-    train = simulate_faces(jax.random.key(1), 2000)
+    train = zoo.faces(1, 2000)
     return fit_spatial_model(train.features_image, train.visible)
 
 
@@ -27,7 +28,7 @@ def model():
 
 
 def test_simulator_truth():
-    s = simulate_faces(jax.random.key(0), 400)
+    s = zoo.faces(0, 400)
     yaw = np.rad2deg(s.yaw)
     assert np.all(np.abs(yaw[~s.profile]) < 20) and np.all((np.abs(yaw[s.profile]) >= 50) & (np.abs(yaw[s.profile]) <= 80))
     # profile faces hide the far eye: the left eye when turned to the person's left (yaw > 0)
@@ -92,7 +93,7 @@ def _evaluate(faces, chosen):
 
 @pytest.mark.parametrize("view", ["frontal", "profile"])
 def test_spatial_model_beats_independent_detectors(model, view):
-    faces = simulate_faces(jax.random.key(2), 300, view=view)
+    faces = zoo.faces(2, 300, view=view)
     cfg = best_configuration(faces.hypotheses, model, threshold=0.0)
     base = _evaluate(faces, independent_detectors(faces.hypotheses))
     spat = _evaluate(faces, cfg.chosen)

@@ -17,19 +17,19 @@ from jaxgaze.gp.exact import fit, predict
 from jaxgaze.gp.posterior import sample_hyperparameter_posterior
 from jaxgaze.headpose.regression import fit_gaze_regression, fit_gaze_regression_nn
 from jaxgaze.headpose.features import head_pose_features
-from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
+from tests import helpers as zoo
 
 
 @pytest.fixture(scope="module")
 def sessions():
     # Two people, two sessions each: sessions 0, 1 are person 0; 2, 3 person 1.
-    return simulate_tabletop_sessions(jax.random.key(0), num_people=2, sessions_per_person=2, duration_s=60.0)
+    return zoo.tabletop_sessions(0, 2, 2, 60.0)
 
 
 @pytest.fixture(scope="module")
 def scores():
     """GPR and NN over every self- and cross-referencing split of 4 people x 2 one-minute sessions."""
-    sessions = simulate_tabletop_sessions(jax.random.key(0), num_people=4, sessions_per_person=2, duration_s=60.0)
+    sessions = zoo.tabletop_sessions(0, 4, 2, 60.0)
     results = evaluate_regression(sessions, key=jax.random.key(1), max_train_frames=400)
     return {(r.split, r.method): r for r in results}
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxgaze.headpose import target as tg
-from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
+from tests import helpers as zoo
 
 # ---------------------------------------------------------------------------
 # target_point
@@ -373,7 +373,7 @@ def test_self_referencing_splits():
 
 
 def test_cross_referencing_splits_from_sessions():
-    sessions = simulate_tabletop_sessions(jax.random.key(0), num_people=3, sessions_per_person=2, duration_s=2.0)
+    sessions = zoo.tabletop_sessions(0, 3, 2, 2.0)
     splits = tg.cross_referencing_splits(sessions)
     assert len(splits) == 3
     for p, (train, test) in enumerate(splits):  # leave person p out
@@ -394,7 +394,7 @@ def test_cross_referencing_splits_from_sessions():
 
 
 def test_pipeline_on_simulated_sessions():
-    sessions = simulate_tabletop_sessions(jax.random.key(7), num_people=2, sessions_per_person=1, duration_s=60.0)
+    sessions = zoo.tabletop_sessions(7, 2, 1, 60.0)
     for s in sessions:
         h, f1, f2 = s.head_centre_image, s.gaze_direction_image, s.target_depth_image
         truth = tg.target_point(h, f1, f2)

@@ -5,7 +5,6 @@ import jax
 import numpy as np
 import pytest
 
-from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
 from jaxgaze.geometry import head_pose_to_rotation
 from jaxgaze.vision.head_model import CylinderHead, frontal_rotation
 from jaxgaze.simulate.video import render_tabletop_video
@@ -18,6 +17,7 @@ from jaxgaze.io.video import (
     video_fps,
     write_video,
 )
+from tests import helpers as zoo
 
 
 def _frames(num=6, size=(64, 48)):
@@ -137,7 +137,7 @@ def test_reading_errors_name_the_file(tmp_path):
 
 @pytest.fixture(scope="module")
 def session():
-    return simulate_tabletop_sessions(jax.random.key(4), num_people=1, sessions_per_person=1, duration_s=1.0)[0]
+    return zoo.tabletop_sessions(4, 1, 1, 1.0)[0]
 
 
 def test_render_tabletop_video_draws_the_head_at_the_session_pose(session):

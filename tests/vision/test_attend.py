@@ -11,7 +11,6 @@ import pytest
 from jaxgaze.headpose import target as tg
 from jaxgaze.headpose.regression import fit_gaze_regression
 from jaxgaze.headpose.features import head_pose_features
-from jaxgaze.simulate.tabletop import simulate_tabletop_sessions
 from jaxgaze.vision import tracker
 from jaxgaze.vision.attend import (
     Attention,
@@ -23,8 +22,9 @@ from jaxgaze.vision.attend import (
 from jaxgaze.papers.yucel2013_attention import attend_session
 from jaxgaze.geometry import head_pose_to_rotation
 from jaxgaze.vision.head_model import CylinderHead, render_head
-from jaxgaze.simulate.render import composite, render_tabletop_scene
+from jaxgaze.simulate.render import composite
 from jaxgaze.vision.saliency_maps import SALIENCY_METHODS, saliency
+from tests import helpers as zoo
 
 H, W = 240, 320
 BOX_A = (100.0, 120.0, 130.0, 150.0)  # red square, image coordinates (pixel edges)
@@ -163,13 +163,13 @@ def test_target_point_covariance_is_the_delta_method_in_every_branch():
 @pytest.fixture(scope="module")
 def table_top():
     """2 people × 2 sessions of 20 s at 10 fps; a GPR fitted on person 1 (100 frames)."""
-    sessions = simulate_tabletop_sessions(jax.random.key(0), num_people=2, sessions_per_person=2, duration_s=20.0)
+    sessions = zoo.tabletop_sessions(0, 2, 2, 20.0)
     train = np.linspace(0, 399, 100).round().astype(int)
     X = np.concatenate([np.asarray(head_pose_features(s.head_pose)) for s in sessions[2:]])[train]
     f1 = np.concatenate([np.asarray(s.gaze_direction_image) for s in sessions[2:]])[train]
     f2 = np.concatenate([np.asarray(s.target_depth_image) for s in sessions[2:]])[train]
     model = fit_gaze_regression(X, f1, f2, key=jax.random.key(1))
-    scenes = [render_tabletop_scene(s, key=jax.random.key(10 + i)) for i, s in enumerate(sessions)]
+    scenes = [zoo.tabletop_scene((0, 2, 2, 20.0), i, 10 + i) for i in range(len(sessions))]
     return sessions, model, scenes
 
 
