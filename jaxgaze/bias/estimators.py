@@ -137,7 +137,7 @@ def _standard_error(x: np.ndarray) -> np.ndarray | None:
 def lmeds_bias(
     offsets: Float[Array, "N 2"], mask: Bool[Array, " N"] | None = None
 ) -> tuple[Float[Array, "2"], Int[Array, ""], Bool[Array, " N"]]:
-    """LMedS bias, eq. 2, vectorised over the ``N × N`` squared distances.
+    """LMedS bias (Siegfried et al. 2017, eq. 2), vectorised over the ``N × N`` squared distances.
 
     For every candidate ``b = o_i``, ``m_i = median_j ‖o_j − o_i‖²`` (the usual median:
     the mean of the two middle values when ``n`` is even); ``b^med = o_{i*}`` with
@@ -186,7 +186,7 @@ def bias_model(
     looking_prior: tuple[float, float] = (5.7, 4.3),
     elsewhere_scale_deg: float = 20.0,
 ):
-    """numpyro model of the offsets: "looking at the partner" or "elsewhere".
+    """numpyro model of the offsets: "looking at the partner" or "elsewhere" (Siegfried et al. 2017, Sec. 5, Fig. 7).
 
     * ``b ~ N(0, (15°)² I₂)``: biases of appearance-based gaze are a few to ~20°
       (Fig. 7 of the paper: within ±20° before correction).
@@ -279,8 +279,9 @@ def sample_bias_posterior(
     progress_bar: bool = False,
     **model_options,
 ) -> tuple[dict, dict]:
-    """NUTS draws from :func:`bias_model` for one person ``(N, 2)`` or many ``(P, N, 2)`` at once.
+    """NUTS draws from :func:`bias_model` (Siegfried et al. 2017, Sec. 5, Fig. 7) for one person or many at once.
 
+    ``offsets`` is ``(N, 2)`` for one person or ``(P, N, 2)`` for many.
     Runs numpyro's NUTS kernel through :func:`jaxgaze.nuts.sample_nuts`: one
     compiled single-chain program, reused for every person and chain, with ``N``
     padded to a power of two (masked) so that fits of similar size share it. Each
@@ -393,8 +394,9 @@ def estimate_bias(
     silent_offsets: Float[Array, "M 2"] | None = None,
     **model_options,
 ) -> BiasEstimate:
-    """Estimate a person's gaze bias from the offsets ``o_i`` ``(N, 2)`` (radians) of selected frames.
+    """Estimate a person's gaze bias from the offsets ``o_i`` of selected frames (Siegfried et al. 2017, Sec. 3.2).
 
+    ``offsets`` are ``(N, 2)`` (radians).
     ``method``: ``"mean"`` (N ≥ 1), ``"lmeds"`` (eq. 2, N ≥ 3; the default, the
     paper's Spk-Med) or ``"bayes"`` (:func:`bias_model` with NUTS; ``key`` defaults
     to ``jax.random.key(0)``, so a fit is reproducible; ``model_options`` go to the

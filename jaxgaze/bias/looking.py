@@ -110,7 +110,7 @@ def _bias(bias, like: Array) -> Array:
 
 
 def gaze_angles_to_direction(angles: Float[Array, "... 2"]) -> Float[Array, "... 3"]:
-    """``Φ(g)``: gaze angles ``(yaw, tilt)`` → unit direction in the head frame.
+    """``Φ(g)``: gaze angles ``(yaw, tilt)`` → unit direction in the head frame (Siegfried et al. 2017, Sec. 2–3).
 
     ``Φ(φ, θ) = (cos θ cos φ, cos θ sin φ, sin θ)``; ``(0, 0)`` is +x (forward),
     ``(π/2, 0)`` is +y (left) and ``(0, π/2)`` is +z (up).
@@ -120,7 +120,10 @@ def gaze_angles_to_direction(angles: Float[Array, "... 2"]) -> Float[Array, "...
 
 
 def direction_to_gaze_angles(direction: Float[Array, "... 3"]) -> Float[Array, "... 2"]:
-    """``Φ⁻¹``: a direction (need not be unit) → ``(yaw, tilt)``, yaw in (−π, π], tilt in [−π/2, π/2]."""
+    """``Φ⁻¹`` (Siegfried et al. 2017, Sec. 2–3): a direction (need not be unit) → ``(yaw, tilt)``.
+
+    Yaw in (−π, π], tilt in [−π/2, π/2].
+    """
     direction = _last_axis("direction", direction, 3)
     yaw, tilt = direction_to_yaw_pitch(direction)
     return jnp.stack([yaw, tilt], axis=-1)
@@ -141,10 +144,11 @@ def head_to_world(
 def target_direction_head(
     eye_world: Float[Array, "... 3"], target_world: Float[Array, "... 3"], R_world_from_head: Float[Array, "... 3 3"]
 ) -> Float[Array, "... 3"]:
-    """``u_t = R_world_from_headᵀ · unit(target − eye)``: the unit eye→target direction in the head frame.
+    """``u_t = R_world_from_headᵀ · unit(target − eye)`` (Siegfried et al. 2017, Sec. 2–3).
 
-    ``eye_world`` is the eye midpoint and ``target_world`` the partner's eye
-    midpoint (world frame, metres). A coincident eye and target gives zeros.
+    The unit eye→target direction in the head frame. ``eye_world`` is the eye midpoint
+    and ``target_world`` the partner's eye midpoint (world frame, metres). A coincident
+    eye and target gives zeros.
     """
     eye = _last_axis("eye_world", eye_world, 3)
     target = _last_axis("target_world", target_world, 3)
@@ -159,10 +163,10 @@ def target_direction_head(
 
 
 def gaze_offsets(gaze_angles: Float[Array, "... 2"], target_dir_head: Float[Array, "... 3"]) -> Float[Array, "... 2"]:
-    """Offsets ``o = angles(u_t) − g`` (Sec. 3.2, the ``o_i`` of eq. 2), yaw wrapped to (−π, π].
+    """Offsets ``o = angles(u_t) − g``, the ``o_i`` of eq. 2 (Siegfried et al. 2017, Sec. 3.2).
 
-    On frames where the person looks at the target ``o ≈ b``: adding ``o`` to ``g``
-    turns the gaze onto ``u_t``.
+    The yaw difference is wrapped to (−π, π]. On frames where the person looks at the
+    target ``o ≈ b``: adding ``o`` to ``g`` turns the gaze onto ``u_t``.
     """
     g, u = _gaze_and_target(gaze_angles, target_dir_head)
     o = direction_to_gaze_angles(u) - g
@@ -174,7 +178,7 @@ def angular_error(
     target_dir_head: Float[Array, "... 3"],
     bias: Float[Array, "... 2"] | None = None,
 ) -> Float[Array, "..."]:
-    """``e = arccos(Φ(g + b) · u_t)`` (eq. 1), radians in [0, π].
+    """``e = arccos(Φ(g + b) · u_t)`` (Siegfried et al. 2017, eq. 1), radians in [0, π].
 
     Evaluated as :func:`jaxgaze.geometry.angle_between` (``atan2(‖a×b‖, a·b)``),
     accurate near 0 where ``arccos`` loses precision. ``u_t`` need not be unit.
@@ -190,7 +194,7 @@ def is_looking_at(
     bias: Float[Array, "... 2"] | None = None,
     threshold_deg: float = 10.0,
 ) -> Bool[Array, "..."]:
-    """Eq. 1: the person looks at the target when ``e = ∠(Φ(g + b), u_t) < τ`` (strict), ``τ = 10°``."""
+    """Looking at the target: ``e = ∠(Φ(g + b), u_t) < τ`` (strict), ``τ = 10°`` (Siegfried et al. 2017, eq. 1)."""
     return angular_error(gaze, target_dir, bias) < deg_to_rad(threshold_deg)
 
 
@@ -200,9 +204,10 @@ def looking_probability(
     bias_samples: Float[Array, "S 2"],
     threshold_deg: float = 10.0,
 ) -> Float[Array, "..."]:
-    """Posterior probability of looking: ``P(e < τ) ≈ (1/S) Σ_s 1[∠(Φ(g + b_s), u_t) < τ]``.
+    """Posterior probability of looking at the target (Siegfried et al. 2017, eq. 1).
 
-    ``bias_samples (S, 2)`` are posterior draws of ``b`` (e.g. ``BiasEstimate.samples["bias"]``).
+    ``P(e < τ) ≈ (1/S) Σ_s 1[∠(Φ(g + b_s), u_t) < τ]``; ``bias_samples (S, 2)`` are
+    posterior draws of ``b`` (e.g. ``BiasEstimate.samples["bias"]``).
     Memory is O(frames): the draws are looped over with ``lax.scan``.
     """
     g, u = _gaze_and_target(gaze, target_dir)
@@ -243,7 +248,7 @@ def candidate_frames(
     window_s: float = 60.0,
     start_s: float = 0.0,
 ) -> Bool[Array, " T"]:
-    """The Spk candidates (Sec. 3.2): partner speaking, head–target angle ≤ 30°, time in the window.
+    """Spk candidates (Siegfried et al. 2017, Sec. 3.2): partner speaking, head–target angle ≤ 30°, in the window.
 
     Frame ``t`` is at time ``t / fps`` seconds and is in the window when
     ``start_s ≤ t / fps < start_s + window_s``. Jittable (no value checks).
@@ -295,7 +300,7 @@ def select_frames(
     window_s: float = 60.0,
     start_s: float = 0.0,
 ) -> FrameSelection:
-    """Spk frame selection (Sec. 3.2): draw up to ``num_frames`` candidates at random, without replacement.
+    """Spk frame selection (Siegfried et al. 2017, Sec. 3.2): draw ≤ ``num_frames`` candidates without replacement.
 
     Candidates (:func:`candidate_frames`) are frames where the partner speaks and the
     angle between the head direction and the target direction is at most

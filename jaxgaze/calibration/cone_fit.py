@@ -154,7 +154,7 @@ class ConeCalibration(NamedTuple):
 
 
 def points_in_camera_frame(R_world_from_camera, camera_centers, points_world) -> Float[Array, "... 3"]:
-    """World points of regard → the wearer's camera frame: ``y = Rᵀ (y_W − C)``.
+    """World points of regard → the wearer's camera frame: ``y = Rᵀ (y_W − C)`` (Park et al. 2012, Sec. 3.2).
 
     This is the paper's ``y = R y_W − R C`` with its ``R`` (camera from world)
     equal to ``R_world_from_cameraᵀ``. Shapes ``(..., 3, 3)``, ``(..., 3)``, ``(..., 3)``.
@@ -179,7 +179,7 @@ def solve_cone_apex(
     regularization: float = DEFAULT_REGULARIZATION,
     mask: Bool[Array, " M"] | None = None,
 ) -> tuple[Array, Array]:
-    """Solve eq. 2: ``min_{α>0} g(α) = max_i a_i/(b_i+α) + λα``; returns ``(α, ξ)``.
+    """Solve ``min_{α>0} g(α) = max_i a_i/(b_i+α) + λα`` (Park et al. 2012, eq. 2); returns ``(α, ξ)``.
 
     ``a_i ≥ 0`` (m) is the distance of point ``i`` from the axis and ``b_i ≥ 0``
     (m) its depth beyond ``p0``; ``λ = regularization`` (1/m) must be positive.
@@ -390,7 +390,7 @@ def calibrate_cone(
     degenerate_tol: float = 1e-4,
     throw: bool = True,
 ) -> ConeCalibration:
-    """Calibrate the cone gaze model of one wearer from points of regard (Sec. 3.2).
+    """Calibrate the cone gaze model of one wearer from points of regard (Park et al. 2012, Sec. 3.2).
 
     Args:
         points: ``(M, 3)`` points of regard ``y_i`` in the wearer's camera frame

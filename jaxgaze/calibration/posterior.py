@@ -71,7 +71,7 @@ def calibration_model(
     direction_concentration: float = 3.0,
     outlier_bandwidth: float = 0.5,
 ):
-    """numpyro model of the calibration points (camera frame) under the cone model.
+    """numpyro model of the calibration points (camera frame) under the cone model (Park et al. 2012, Sec. 3.2).
 
     ``mask`` marks the real points (``False`` for padding, which adds nothing).
     """
@@ -169,7 +169,7 @@ def calibrate_cone_posterior(
     progress_bar: bool = False,
     **model_options,
 ) -> CalibrationPosterior:
-    """Sample one wearer's calibration posterior with NUTS (numpyro) and summarise it with arviz.
+    """Sample one wearer's calibration posterior with NUTS, summarised by arviz (Park et al. 2012, Sec. 3.2).
 
     ``points (M, 3)`` are the points of regard in the wearer's camera frame
     (metres). ``init_*`` (e.g. from the RANSAC point estimate) start the chains
@@ -195,7 +195,7 @@ def calibrate_cone_posterior_batch(
     progress_bar: bool = False,
     **model_options,
 ) -> list[CalibrationPosterior]:
-    """:func:`calibrate_cone_posterior` for ``W`` wearers in one vectorised NUTS run.
+    """:func:`calibrate_cone_posterior` for ``W`` wearers in one vectorised NUTS run (Park et al. 2012, Sec. 3.2).
 
     ``points`` is ``(W, M, 3)`` or a list of ``W`` arrays ``(M_w, 3)`` (padded and
     masked internally). ``init_eye_centers``/``init_directions`` are ``(W, 3)`` or

@@ -177,7 +177,7 @@ def _kernel(tab_ref, x_ref, y_ref, z_ref, ox_ref, oy_ref, oz_ref, it_ref, ok_ref
 )
 def fused_meanshift(proj, seeds, tol, *, max_iter, max_stretch: int, block_seeds: int = 64,
                     block_rays: int = 32, num_warps: int = 4, approximate: bool = True, interpret: bool = False):
-    """Mean-shift every seed with the fused kernel: ``(points, iterations, converged)``.
+    """Mean-shift every seed with the fused kernel (Park et al. 2012, eq. 6): ``(points, iterations, converged)``.
 
     ``proj`` is the ``RayProjector`` of the rays; arguments as in :func:`jaxgaze.meanshift`.
     ``approximate`` uses the hardware reciprocal for ``1/t`` in float32 on a GPU.

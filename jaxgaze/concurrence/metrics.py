@@ -230,7 +230,7 @@ def coverage(concurrences, truth, truth_valid=None, level: float = 0.9, *, max_d
 
 
 def region_coverage(concurrences, truth, truth_valid=None, *, max_distance: float | None = None) -> float:
-    """Fraction of matched truths inside the paper's confidence region of their estimate.
+    """Fraction of matched truths inside the confidence region of their estimate (Park et al. 2012, Sec. 4.1).
 
     Park et al. (Sec. 4.1) draw the region ``{x : f(x) ≥ 0.8 f(mode)}`` and
     report that the markers are always inside it. With the region's principal

@@ -270,7 +270,7 @@ class RayProjector(NamedTuple):
 
 
 def ray_projector(rays: GazeRays) -> RayProjector:
-    """Precompute the :class:`RayProjector` of one frame of rays."""
+    """Precompute the :class:`RayProjector` of one frame of rays (Park et al. 2012, eq. 5–6)."""
     u1, u2 = jax.vmap(orthonormal_basis)(rays.directions)
     basis = jnp.stack([rays.directions, u1, u2], axis=1)  # (N, 3, 3)
     offsets = jnp.einsum("nij,nj->ni", basis, rays.origins, precision=jax.lax.Precision.HIGHEST)
@@ -353,7 +353,7 @@ def meanshift(
     max_iter: int = 500,
     max_stretch: int = 32,
 ) -> MeanShiftResult:
-    """Run the mean-shift of eq. 6 from each seed until a step is below ``tol`` metres.
+    """Run the mean-shift (Park et al. 2012, eq. 6) from each seed until a step is below ``tol`` metres.
 
     Jit-compatible and vmapped over seeds; each seed runs its own
     ``lax.while_loop``. Each iteration computes the closed-form update
@@ -637,7 +637,7 @@ def find_concurrences(
     rays: GazeRays,
     options: ConcurrenceOptions = ConcurrenceOptions(),
 ) -> Concurrences:
-    """Number, locations and uncertainty of the gaze concurrences in one frame.
+    """Number, locations and uncertainty of the gaze concurrences in one frame (Park et al. 2012, Sec. 3.3).
 
     Args:
         rays: one frame of primary gaze rays, ``(N, 3)``, world frame, metres.
@@ -688,7 +688,7 @@ def find_concurrences_over_frames(
     frames_per_batch: int | None = None,
     progress: bool = False,
 ) -> Concurrences:
-    """:func:`find_concurrences` for a whole recording, vmapped over batches of frames.
+    """:func:`find_concurrences` for a whole recording, vmapped over batches of frames (Park et al. 2012, Sec. 3.3).
 
     ``rays`` has shape ``(T, N, 3)`` with ``rays.mask`` marking the people
     present in each frame (see :meth:`GazeRays.stack`); ``options`` is a
@@ -734,7 +734,7 @@ def find_concurrences_over_frames(
 
 
 def track_concurrences(concurrences: Concurrences, *, max_distance: float = 0.5, max_gap: int = 2) -> Tracks:
-    """Link the modes of consecutive frames into trajectories with birth and death.
+    """Link the modes of consecutive frames into trajectories with birth and death (Park et al. 2012, Sec. 3.3).
 
     A ``lax.scan`` over frames. In each frame the modes, strongest first, take
     the nearest live track within ``max_distance`` metres that is not yet taken;

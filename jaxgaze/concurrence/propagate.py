@@ -50,7 +50,7 @@ def propagate_to_concurrences(
     max_distance: float = 0.5,
     options: ConcurrenceOptions = ConcurrenceOptions(),
 ) -> ConcurrenceEnsemble:
-    """Carry calibration uncertainty into the concurrences of one frame.
+    """Carry calibration uncertainty into the concurrences of one frame (Park et al. 2012, Sec. 3.2 and 4).
 
     Draw ``s`` gives person ``i`` the ray ``p = R_i e_s,i + C_i``, ``v = R_i d_s,i``
     (camera frame → world). All draws go through

@@ -192,7 +192,7 @@ def run_chain(
     num_components: int = 2,
     num_iters: int = 15,
 ) -> ChainResult:
-    """Run the cascade at threshold ``T_h = threshold`` on ``hypotheses`` (a
+    """Run the cascade (ROVIS gaze following, eq. 2, Fig. 6) at threshold ``T_h = threshold`` on ``hypotheses`` (a
     :class:`~jaxgaze.facial.face_model.Hypotheses` or ``(positions, confidences)``,
     ``(..., 4, H, 2)``, ``(..., 4, H)``).
 
@@ -222,7 +222,10 @@ def _faces_arrays(faces):
 
 
 def sweep_threshold(faces, spatial_model: SpatialModel, thresholds, *, key=None, **chain_kw) -> np.ndarray:
-    """Mean ``y_f`` over all ``faces`` at each threshold of ``thresholds`` (same noise key for each)."""
+    """Mean ``y_f`` (ROVIS gaze following, eq. 2) over all ``faces`` at each threshold of ``thresholds``.
+
+    The same noise key is used for each threshold.
+    """
     cfg = _cfg(chain_kw.pop("method", "spatial"), chain_kw.pop("roi_half", 6), chain_kw.pop("blob_sd", 2.0),
                chain_kw.pop("noise", 0.05), chain_kw.pop("num_components", 2), chain_kw.pop("num_iters", 15))
     if chain_kw:
@@ -249,7 +252,7 @@ def tune_threshold(
     bounds: tuple[float, float] = (0.0, 0.95),
     **chain_kw,
 ) -> ESCTrajectory:
-    """Tune ``T_h`` by extremum seeking on the mean ``y_f`` of a batch of frames.
+    """Tune ``T_h`` by extremum seeking on the mean ``y_f`` of a batch of frames (ROVIS gaze following, Fig. 5–6).
 
     The objective is noisy: each step draws a fresh batch of ``batch_size`` frames
     (indices sampled with replacement from the simulated pool ``faces``) from the

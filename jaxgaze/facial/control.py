@@ -63,7 +63,9 @@ def extremum_seeking(
     bounds: tuple[float, float] | None = None,
     key: Array | None = None,
 ) -> ESCTrajectory:
-    """Run a discrete extremum-seeking loop with ``lax.scan`` (pure JAX, jittable).
+    """Run a discrete extremum-seeking loop with ``lax.scan`` (ROVIS gaze following, Fig. 5–6).
+
+    Pure JAX and jittable; the loop is that of the module docstring (Ariyur & Krstić 2003).
 
     Args:
         objective: ``objective(theta, key) -> y`` (scalar); ``key`` is a fresh

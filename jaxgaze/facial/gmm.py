@@ -65,8 +65,8 @@ def _log_gauss(x, mean, cov):
 
 
 def fit_gmm(coords, weights, num_components: int = 2, *, num_iters: int = 30, jitter: float = 1e-2) -> GMMFit:
-    """Weighted EM for a ``num_components`` Gaussian mixture on ``coords (P, 2)`` with
-    non-negative ``weights (P,)`` (pixel likelihoods; normalised internally). Jittable.
+    """Weighted EM (ROVIS gaze following, Sec. 4) for a ``num_components`` Gaussian mixture on ``coords (P, 2)``
+    with non-negative ``weights (P,)`` (pixel likelihoods; normalised internally). Jittable.
 
     ``jitter`` (px²) is added to every covariance each M-step so a component collapsing
     on one pixel stays invertible. A zero total weight gives NaN (check before calling;
@@ -120,10 +120,10 @@ def _inv2(M):
 
 
 def mixture_mode(fit: GMMFit, start, num_iters: int = 30) -> Array:
-    """Mode of the mixture density reached from ``start`` by the fixed-point (mean-shift)
-    iteration ``x ← (Σ_k r_k(x) Σ_k⁻¹)⁻¹ Σ_k r_k(x) Σ_k⁻¹ μ_k`` (Carreira-Perpiñán 2000),
-    ``r_k(x)`` the responsibilities at ``x``. Started at the heaviest component's mean,
-    it finds the peak that component sits on, even when EM splits one blob in two."""
+    """Mode of the mixture density reached from ``start`` by fixed-point mean-shift (Carreira-Perpiñán 2000):
+    the iteration ``x ← (Σ_k r_k(x) Σ_k⁻¹)⁻¹ Σ_k r_k(x) Σ_k⁻¹ μ_k``, ``r_k(x)`` the responsibilities at ``x``.
+    Started at the heaviest component's mean, it finds the peak that component sits on,
+    even when EM splits one blob in two."""
     prec = jax.vmap(_inv2)(fit.covariances)  # (K, 2, 2)
     logw = jnp.log(jnp.maximum(fit.weights, 1e-30))
     pm = jnp.einsum("kij,kj->ki", prec, fit.means)
@@ -148,8 +148,9 @@ def pixel_coordinates(shape, origin=(0.0, 0.0)) -> Array:
 def localize_point(
     likelihood, origin=(0.0, 0.0), *, num_components: int = 2, num_iters: int = 30, jitter: float = 1e-2
 ) -> PointEstimate:
-    """Localise the feature point in an ``(h, w)`` pixel-likelihood map whose top-left
-    corner sits at image position ``origin (x, y)``. Jittable / vmappable.
+    """Localise the feature point in an ``(h, w)`` pixel-likelihood map (ROVIS gaze following, Sec. 4).
+
+    The map's top-left corner sits at image position ``origin (x, y)``. Jittable / vmappable.
 
     Returns the mixture mode reached from the heaviest component, with that
     component's covariance and weight. A map

@@ -255,9 +255,8 @@ def default_templates() -> FeatureTemplates:
 
 @functools.lru_cache(maxsize=3)
 def default_spatial_model(view: str = "mixed") -> SpatialModel:
-    """The spatial model for photographs (ROVIS, "Human–Robot Interaction Through Robust
-    Gaze Following", spatial model), packaged with jaxgaze for ``view`` ``"frontal"`` or
-    ``"mixed"`` (half frontal, half profile); cached.
+    """The spatial model for photographs (ROVIS gaze following), packaged with jaxgaze for
+    ``view`` ``"frontal"`` or ``"mixed"`` (half frontal, half profile); cached.
 
     The packaged models were fitted to 4000 simulated faces of that view (fixed key,
     :func:`jaxgaze.simulate.faces.default_spatial_model_fit` rebuilds them). The face
@@ -418,7 +417,7 @@ def _likelihood_patch(sm: _ScaleMaps, k: int, xy):
 
 
 def feature_hypotheses(image, face=None, *, templates: FeatureTemplates | None = None, num_hypotheses: int = 4):
-    """Feature hypotheses ``p(H|I)`` in one face of ``image`` (module doc, step 1).
+    """Feature hypotheses ``p(H|I)`` in one face of ``image`` (ROVIS gaze following, Sec. 3–4; module doc, step 1).
 
     ``face``: a :class:`~jaxgaze.vision.FaceBox` or ``(x, y, width, height)``;
     default: the best face :func:`~jaxgaze.vision.detect_faces` finds upright or, if none, turned by ±15°.
@@ -532,7 +531,9 @@ def locate_features(
     num_hypotheses: int = 4,
     method: str = "spatial",
 ) -> ImageFeatures:
-    """Facial feature points of one face in ``image``: the whole cascade (module doc).
+    """Facial feature points of one face in ``image``: the whole cascade (ROVIS gaze following, Sec. 3–4).
+
+    The cascade is described in the module docstring.
 
     ``face``: a face box (default: the best face :func:`~jaxgaze.vision.detect_faces`
     finds upright or, if none, turned by ±15°: :data:`DETECTION_ROTATIONS_DEG`); ``threshold``: ``T_h``,

@@ -1,4 +1,4 @@
-"""Facial-feature localisation metrics (seed 003 eq. 3–5 with METHODS.md §4's choice).
+"""Facial-feature localisation metrics (ROVIS gaze following, eq. 3–5).
 
 ``τ(m) = 1 / ‖(m_le + m_re)/2 − m_m‖`` (the eye-midpoint-to-mouth distance; the paper
 prints it without the /2), the mean normalised deviation ``τ(m) (1/k) Σ ‖m_i − m̂_i‖``
@@ -22,7 +22,7 @@ def _arr(name, x, shape_tail):
 
 
 def tau(true_features) -> np.ndarray:
-    """``1 / ‖(m_le + m_re)/2 − m_m‖`` for true feature centres ``(..., 4, 2)``.
+    """``τ = 1 / ‖(m_le + m_re)/2 − m_m‖`` for true feature centres ``(..., 4, 2)`` (ROVIS gaze following, eq. 3–5).
 
     Raises ValueError on NaN or a degenerate face (eye midpoint on the mouth)."""
     m = _arr("true_features", true_features, (4, 2))
@@ -35,7 +35,7 @@ def tau(true_features) -> np.ndarray:
 
 
 def normalized_deviation(true_features, estimated, present=None):
-    """Mean and max normalised deviation (eq. 3, 5), each ``(...,)``.
+    """Mean and max normalised deviation (ROVIS gaze following, eq. 3, 5), each ``(...,)``.
 
     ``estimated (..., 4, 2)`` may hold NaN for features it did not estimate;
     ``present (..., 4)`` (default: the finite estimates) picks the features compared.

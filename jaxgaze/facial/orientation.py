@@ -130,7 +130,7 @@ def _check_points(points_2d, visible=None, *, min_points=3) -> tuple[np.ndarray,
 
 
 def gee_cipolla_ratios(model: FaceModel | None = None) -> tuple[float, float]:
-    """Model ratios ``(R_m, R_n)`` of Gee & Cipolla from a 3D face.
+    """Model ratios ``(R_m, R_n)`` from a 3D face (Gee & Cipolla 1994).
 
     The symmetry axis runs from the eye midpoint ``E`` to the mouth midpoint ``M``
     (length ``L_f``). The nose base ``B`` is the foot of the perpendicular from the
@@ -251,7 +251,7 @@ def orientation_gee_cipolla(
     focal_px: float | None = None,
     principal_point=None,
 ) -> tuple[float, float]:
-    """(yaw, pitch) of the head by Gee & Cipolla's facial normal (1994), radians.
+    """(yaw, pitch) of the head from the facial normal, radians (Gee & Cipolla 1994).
 
     Args:
         points_2d: ``(5, 2)`` pixels in the order of :data:`POINTS`, NaN rows missing.
@@ -295,12 +295,13 @@ def gee_cipolla_covariance(
     principal_point=None,
     step_px: float = 1e-3,
 ) -> np.ndarray:
-    """``(2, 2)`` covariance of :func:`orientation_gee_cipolla`'s (yaw, pitch), radians².
+    """``(2, 2)`` covariance of the Gee & Cipolla (yaw, pitch), radians² (ROVIS gaze following, Sec. 4).
 
-    Delta method: ``Σ = σ² G Gᵀ`` with ``G`` the derivative of (yaw, pitch) with
-    respect to the visible point coordinates (central differences of ``step_px``),
-    for independent isotropic point noise σ = ``pixel_sigma`` px. It ignores the
-    model error (a real face is not the generic one) and the weak-perspective bias.
+    Of :func:`orientation_gee_cipolla`, by the delta method: ``Σ = σ² G Gᵀ`` with ``G``
+    the derivative of (yaw, pitch) with respect to the visible point coordinates
+    (central differences of ``step_px``), for independent isotropic point noise
+    σ = ``pixel_sigma`` px. It ignores the model error (a real face is not the
+    generic one) and the weak-perspective bias.
     """
     sigma = float(pixel_sigma)
     if not (np.isfinite(sigma) and sigma > 0):
@@ -379,7 +380,7 @@ def orientation_pnp(
     pixel_sigma: float | None = None,
     shape_sd: float = 0.0,
 ) -> HeadOrientation:
-    """Head pose by ``cv2.solvePnP`` against the generic face, with a Laplace covariance.
+    """Head pose by ``cv2.solvePnP`` against the generic face, Laplace covariance (ROVIS gaze following, Sec. 4).
 
     Args:
         points_2d: ``(5, 2)`` pixels in the order of :data:`POINTS`.
@@ -511,7 +512,7 @@ def head_orientation_gee_cipolla(
     R_n: float | None = None,
     model: FaceModel | None = None,
 ) -> HeadOrientation:
-    """Gee & Cipolla as a :class:`HeadOrientation` (for :func:`to_gaze_rays`).
+    """Facial-normal pose (Gee & Cipolla 1994) as a :class:`HeadOrientation` (for :func:`to_gaze_rays`).
 
     The rotation is the full one from the normal and the symmetry axis; the head
     origin is the eye midpoint's ray at the weak-perspective depth
@@ -548,7 +549,7 @@ def to_gaze_rays(
     extra_bandwidth: float = 0.0,
     min_bandwidth: float = 1e-3,
 ) -> GazeRays:
-    """Head orientations → primary gaze rays (:class:`jaxgaze.GazeRays`, one frame).
+    """Head orientations → primary gaze rays, one frame of :class:`jaxgaze.GazeRays` (ROVIS gaze following, Sec. 4).
 
     The origin is the head origin (eye midpoint), the direction the head's forward
     axis, both moved from the optical frame to the repo's camera frame by

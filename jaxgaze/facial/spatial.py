@@ -1,5 +1,5 @@
 """The spatial model of facial-feature configurations and the exact configuration
-search (ROVIS gaze following, seed 003 Sec. 4, eq. 1, Fig. 7; METHODS.md §4).
+search (ROVIS gaze following, Sec. 4, eq. 1, Fig. 7).
 
 A configuration picks one ROI hypothesis or "missing" per feature of
 :data:`~jaxgaze.facial.face_model.FEATURES`, with at least 3 present (eq. 1: all four
@@ -82,8 +82,9 @@ def configuration_shape(positions, present):
 
 
 def fit_spatial_model(features_image, visible, *, min_count: int = 20, floor: float = 1e-4) -> SpatialModel:
-    """Fit the model to training faces: true feature centres ``(N, 4, 2)`` and ``visible (N, 4)``.
+    """Fit the spatial model to training faces (ROVIS gaze following, eq. 1, Fig. 7).
 
+    The faces are given by their true feature centres ``(N, 4, 2)`` and ``visible (N, 4)``.
     Each subset's Gaussian uses the faces whose visible set is exactly that subset, or,
     when fewer than ``min_count`` such faces exist, every face showing the subset.
     Eigenvalues below ``1e-9 ×`` the largest are dropped (the constrained directions);
@@ -125,7 +126,10 @@ def _subset_index(present):
 
 
 def config_log_density(positions, present, model: SpatialModel):
-    """``log p(subset) + log N(shape | subset)`` for ``positions (..., 4, 2)`` and ``present (..., 4)``; −inf with fewer than 3 present."""
+    """``log p(subset) + log N(shape | subset)`` of a configuration (ROVIS gaze following, eq. 1, Fig. 7).
+
+    For ``positions (..., 4, 2)`` and ``present (..., 4)``; −inf with fewer than 3 present.
+    """
     present = jnp.asarray(present, bool)
     s = _subset_index(present)
     x = configuration_shape(positions, present)
@@ -191,8 +195,11 @@ def check_hypotheses(hypotheses, threshold):
 
 
 def best_configuration(hypotheses, model: SpatialModel, threshold: float = 0.0) -> Configuration:
-    """Exact best configuration of ``hypotheses`` (a :class:`Hypotheses` or ``(positions, confidences)``,
-    shapes ``(..., 4, H, 2)`` and ``(..., 4, H)``), using only hypotheses with confidence > ``threshold``.
+    """Exact best configuration of ``hypotheses`` (ROVIS gaze following, eq. 1, Fig. 7).
+
+    ``hypotheses`` is a :class:`Hypotheses` or ``(positions, confidences)``, shapes
+    ``(..., 4, H, 2)`` and ``(..., 4, H)``; only hypotheses with confidence > ``threshold``
+    are used.
 
     With fewer than 3 features having a usable hypothesis, ``found`` is False,
     ``chosen`` is all −1, ``score`` −inf and ``posterior`` 0.

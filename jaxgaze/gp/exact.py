@@ -269,7 +269,7 @@ def _lml_checked(kernel, X, y, jitter):
 
 @eqx.filter_jit
 def factorise(kernel: Kernel, X, y, jitter):
-    """Cholesky factor, α = K⁻¹y, the log marginal likelihood and the jitter used."""
+    """Cholesky factor, α = K⁻¹y, the log marginal likelihood and the jitter used (Rasmussen & Williams 2006)."""
     K, j = _covariance(kernel, X, jitter)
     L = jnp.linalg.cholesky(K)
     alpha = cho_solve((L, True), y)
@@ -304,7 +304,7 @@ def _not_pd_message(where: str, jitter_text: str) -> str:
 
 
 def log_marginal_likelihood(kernel: Kernel, X: Float[Array, "n D"], y: Float[Array, " n"], *, jitter=None):
-    """``log p(y | X, θ)`` of a zero-mean GP with covariance ``kernel(X) + jitter·I``.
+    """``log p(y | X, θ)`` of a zero-mean GP with ``K = kernel(X) + jitter·I`` (Rasmussen & Williams 2006, eq. 2.30).
 
     ``−½ yᵀK⁻¹y − Σ_i log L_ii − (n/2) log 2π`` with the Cholesky ``K = LLᵀ``
     (Rasmussen & Williams eq. 2.30; the objective behind Yücel et al. eq. 13).
@@ -334,7 +334,7 @@ def predict(
     jitter=None,
     full_covariance: bool = False,
 ):
-    """GP posterior at ``X_new`` (Yücel et al. eq. 12–13): ``(mean, variance)`` or ``(mean, covariance)``.
+    """GP posterior at ``X_new`` (Yücel et al. 2013, eq. 12–13): ``(mean, variance)`` or ``(mean, covariance)``.
 
     Mean ``K*ᵀ K⁻¹ y``; variance ``diag(K**) − diag(K*ᵀ K⁻¹ K*)`` clipped at 0
     (rounding can make it slightly negative), or the full ``(m, m)`` covariance
@@ -418,7 +418,7 @@ class FittedGP(NamedTuple):
         return _message(self.result, self.jitter)
 
     def predict(self, X_new: Float[Array, "m D"], full_covariance: bool = False):
-        """Posterior ``(mean, variance)`` or ``(mean, covariance)`` at ``X_new`` (eq. 12–13)."""
+        """Posterior ``(mean, variance)`` or ``(mean, covariance)`` at ``X_new`` (Yücel et al. 2013, eq. 12–13)."""
         if bool(self.result == RESULTS.not_positive_definite) or bool(self.result == RESULTS.nonfinite):
             raise ValueError(f"cannot predict from a failed fit: {self.message}")
         X_new = _check_new(X_new, self.X)
@@ -688,7 +688,7 @@ def fit(
     throw: bool = False,
     progress: bool = False,
 ) -> FittedGP:
-    """Type-II maximum likelihood: kernel parameters maximising the log marginal likelihood.
+    """Type-II maximum likelihood: kernel parameters maximising the LML (Yücel et al. 2013, after eq. 13).
 
     Optimises the kernel's trainable unconstrained (log) parameters
     (``kernel.trainable_filter()``; ``fixed=`` parameters stay put) with an

@@ -342,9 +342,9 @@ class RBF(Parametrised):
 
 
 class RationalQuadratic(Parametrised):
-    """``k(x, y) = σ² (1 + r² / (2 α))^(−α)`` with ``r² = Σ_d (x_d − y_d)² / ℓ_d²``.
+    """``k(x, y) = σ² (1 + r² / (2 α))^(−α)`` (Rasmussen & Williams 2006, eq. 4.19).
 
-    A scale mixture of RBFs (Rasmussen & Williams eq. 4.19); α → ∞ gives the RBF.
+    With ``r² = Σ_d (x_d − y_d)² / ℓ_d²``: a scale mixture of RBFs; α → ∞ gives the RBF.
     Yücel et al. T-CYB 2013 (Sec. V) use the isotropic form in ``f1``. Same as
     scikit-learn's ``ConstantKernel(σ²) * RationalQuadratic(ℓ, α)``.
     """
@@ -378,7 +378,7 @@ class RationalQuadratic(Parametrised):
 
 
 class ArcSine(Parametrised):
-    """Williams' neural-network kernel (GPy ``MLP``, GPML ``covNN``).
+    """Williams' neural-network kernel (Williams 1998; GPy ``MLP``, GPML ``covNN``).
 
     ``k(x, y) = σ² (2/π) asin( (xᵀΣy + σb²) / sqrt((xᵀΣx + σb² + 1)(yᵀΣy + σb² + 1)) )``
     with ``Σ = diag(σw²)`` (``weight_variance``, scalar or (D,)) and ``σb²``
@@ -460,9 +460,9 @@ class Linear(Parametrised):
 
 
 class White(Parametrised):
-    """Independent noise: σ² on the diagonal of ``k(X)`` only (scikit-learn's ``WhiteKernel``).
+    """Independent noise: σ² on the diagonal of ``k(X)`` only (Yücel et al. 2013, eq. 7).
 
-    ``evaluate`` is 0 (no covariance between distinct evaluations, nor between
+    As scikit-learn's ``WhiteKernel``: ``evaluate`` is 0 (no covariance between distinct evaluations, nor between
     two different sets); ``evaluate_noise`` is σ². In Yücel et al. (T-CYB eq. 7)
     this is the i.i.d. observation noise σ0², attributed to eye movements.
     """
@@ -608,7 +608,7 @@ def _check_num_features(num_features) -> int:
 
 
 def gaze_direction_kernel(num_features: int, *, ard: bool = False, noise_variance: float = 0.1) -> Sum:
-    """Kernel of ``f1`` (gaze direction from head pose), Yücel et al. T-CYB 2013 Sec. V.
+    """Kernel of ``f1``, the gaze direction from head pose (Yücel et al. 2013, Sec. V, eq. 5–7).
 
     ``RationalQuadratic + ArcSine + White``: an isotropic rational quadratic
     plus the neural-network (arc-sine) kernel, plus the i.i.d. noise σ0² of
@@ -628,7 +628,7 @@ def gaze_direction_kernel(num_features: int, *, ard: bool = False, noise_varianc
 
 
 def target_depth_kernel(num_features: int, *, ard: bool = False, noise_variance: float = 0.1) -> Sum:
-    """Kernel of ``f2`` (depth of the attended object), Yücel et al. T-CYB 2013 Sec. V.
+    """Kernel of ``f2``, the depth of the attended object (Yücel et al. 2013, Sec. V).
 
     ``Linear + White``: a linear covariance (the geometry of camera, person and
     objects) plus independent noise (eye movements). Defaults for standardised

@@ -51,7 +51,7 @@ def _site_names(kernel: Kernel, params) -> list[str]:
 
 
 def hyperparameter_model(X, y, prior_loc, prior_scale, *, static, treedef, names):
-    """numpyro model: ``log θ ~ N(prior_loc, prior_scale²)``, ``y ~ GP(0, k_θ)`` (marginal likelihood).
+    """numpyro model: ``log θ ~ N(prior_loc, prior_scale²)``, ``y ~ GP(0, k_θ)`` (Yücel et al. 2013, eq. 11).
 
     ``prior_loc`` is the list of raw (log) leaves of the prior centre; ``static``,
     ``treedef`` and ``names`` describe the kernel (from :func:`eqx.partition`).
@@ -92,7 +92,10 @@ class HyperparameterPosterior(NamedTuple):
     divergences: int
 
     def predict(self, X_new: Float[Array, "m D"], *, max_draws: int = 100) -> tuple[Array, Array]:
-        """Mean and variance at ``X_new``, averaged over up to ``max_draws`` evenly spaced draws."""
+        """Mean and variance at ``X_new`` (Yücel et al. 2013, eq. 12–13), averaged over draws.
+
+        Up to ``max_draws`` evenly spaced draws are used.
+        """
         X_new = jnp.asarray(X_new, self.X.dtype)
         if X_new.ndim != 2 or X_new.shape[1] != self.X.shape[1]:
             raise ValueError(f"X_new must have shape (m, {self.X.shape[1]}), got {X_new.shape}")
@@ -129,7 +132,7 @@ def sample_hyperparameter_posterior(
     num_samples: int = 300,
     progress_bar: bool = False,
 ) -> HyperparameterPosterior:
-    """Sample ``p(θ | X, y)`` for the trainable hyperparameters of ``kernel`` with NUTS.
+    """Sample ``p(θ | X, y)`` for the trainable hyperparameters of ``kernel`` with NUTS (Yücel et al. 2013, eq. 11).
 
     ``kernel`` is the prior centre ``θ₀`` (its defaults suit standardised inputs
     and outputs); ``prior_scale`` is the prior sd of each ``log θ``. The chain

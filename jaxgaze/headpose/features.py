@@ -9,7 +9,7 @@ __all__ = ["head_pose_features"]
 
 
 def head_pose_features(pose, position=None) -> Float[Array, "T D"]:
-    """Features ``x_t`` of the gaze regression: ``(pitch, yaw, roll)`` (radians), ``(T, 3)``.
+    """Gaze-regression features ``x_t``: ``(pitch, yaw, roll)`` (radians), ``(T, 3)`` (Yücel et al. 2013, Sec. V).
 
     With ``position`` (the head position ``(x, y, z)`` per frame, metres, ``(T, 3)``)
     the features are T-CYB's full pose ``[pose, position]``, ``(T, 6)``. Leaving the

@@ -116,9 +116,9 @@ class MLPFit(NamedTuple):
 def init_mlp_params(
     key: PRNGKeyArray, n_inputs: int, hidden_units: int = 10, dtype=jnp.float32
 ) -> MLPParams:
-    """Initial weights: every entry of W1, b1, W2 and b2 i.i.d. U(−0.5, 0.5)
-    (CogSci "Weights in both layers are initialized randomly from the (−0.5, 0.5)
-    interval"; T-CYB Sec. VII)."""
+    """Initial weights (Yücel et al. 2009, CogSci; 2013, Sec. VII): every entry of W1, b1, W2 and b2
+    i.i.d. U(−0.5, 0.5) (CogSci: "Weights in both layers are initialized randomly from the
+    (−0.5, 0.5) interval")."""
     _check_positive_int(n_inputs, "n_inputs", "init_mlp_params")
     _check_positive_int(hidden_units, "hidden_units", "init_mlp_params")
     k1, k2, k3, k4 = jax.random.split(key, 4)
@@ -132,7 +132,10 @@ def init_mlp_params(
 
 
 def mlp_forward(params: MLPParams, X: Float[Array, "*batch D"]) -> Float[Array, " *batch"]:
-    """``f(x) = W2ᵀ tanh(W1ᵀ x + b1) + b2`` on (already standardised) inputs."""
+    """``f(x) = W2ᵀ tanh(W1ᵀ x + b1) + b2`` (Yücel et al. 2009, CogSci; 2013, Sec. VII).
+
+    The inputs ``X`` are already standardised.
+    """
     return jnp.tanh(X @ params.W1 + params.b1) @ params.W2 + params.b2
 
 
@@ -146,8 +149,8 @@ _sample_grad = jax.grad(_sample_loss)
 
 
 def learning_rate_schedule(learning_rate, decay, num_epochs: int) -> Float[Array, " num_epochs"]:
-    """Learning rate of each epoch, ``η_e = learning_rate · decay^e`` for
-    ``e = 0 … num_epochs − 1`` (exponential decrease, CogSci / T-CYB Sec. VII)."""
+    """Learning rate of each epoch (Yücel et al. 2009, CogSci; 2013, Sec. VII): ``η_e = learning_rate · decay^e``
+    for ``e = 0 … num_epochs − 1`` (an exponential decrease)."""
     e = jnp.arange(num_epochs)
     lr = jnp.asarray(learning_rate)
     return lr * jnp.asarray(decay, dtype=lr.dtype) ** e.astype(lr.dtype)
@@ -160,8 +163,8 @@ def online_epoch(
     order: Int[Array, " n"],
     learning_rate,
 ) -> MLPParams:
-    """One epoch of online (per-sample) gradient descent: for ``i`` in ``order``,
-    ``θ ← θ − learning_rate · ∇θ ½(f(X[i]) − y[i])²``. One ``lax.scan``."""
+    """One epoch of online (per-sample) gradient descent (Yücel et al. 2009, CogSci; 2013, Sec. VII):
+    for ``i`` in ``order``, ``θ ← θ − learning_rate · ∇θ ½(f(X[i]) − y[i])²``. One ``lax.scan``."""
 
     def step(p, i):
         g = _sample_grad(p, X[i], y[i])
@@ -248,7 +251,7 @@ def fit_mlp(
     validation_fraction: float = 0.2,
     patience: int = 20,
 ) -> MLPFit:
-    """Train the NN baseline of Yücel et al. (CogSci; T-CYB Sec. VII) on ``(X, y)``.
+    """Train the NN baseline (Yücel et al. 2009, CogSci; 2013, Sec. VII) on ``(X, y)``.
 
     ``round(validation_fraction · n)`` (at least one) random rows are held out for
     early stopping; the rest are trained on with online SGD, learning rate

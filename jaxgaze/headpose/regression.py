@@ -110,7 +110,7 @@ class GazeRegression(NamedTuple):
         return jnp.asarray(self.features.apply(X), dtype)
 
     def predict(self, features: Float[Array, "T D"]) -> GazePrediction:
-        """Predictive means and variances of ``f1`` and ``f2`` at new head poses (eq. 12–13)."""
+        """Predictive means and variances of ``f1`` and ``f2`` at new head poses (Yücel et al. 2013, eq. 12–13)."""
         Z = self.standardised(features)
         m1, v1 = self.direction_gp.predict(Z)
         m2, v2 = self.depth_gp.predict(Z)
@@ -127,7 +127,7 @@ def fit_gaze_regression(
     ard: bool = False,
     progress: bool = False,
 ) -> GazeRegression:
-    """Fit the ``f1`` (direction) and ``f2`` (depth) GPs by type-II maximum likelihood.
+    """Fit the ``f1`` (direction) and ``f2`` (depth) GPs by type-II maximum likelihood (Yücel et al. 2013, Sec. V).
 
     ``features`` are head poses per frame (e.g. :func:`jaxgaze.headpose.features.head_pose_features`:
     pitch, yaw, roll in radians and the head position in metres); ``direction``
@@ -161,7 +161,10 @@ class NNGazeRegression(NamedTuple):
 
 
 def fit_gaze_regression_nn(features, direction, depth, *, key, **options) -> NNGazeRegression:
-    """Fit the CogSci baseline: two 10-unit networks, online SGD, early stopping (:func:`fit_mlp`)."""
+    """Fit the NN baseline (Yücel et al. 2009, CogSci): two 10-unit networks (:func:`fit_mlp`).
+
+    Each is trained by online SGD with early stopping.
+    """
     X, f1, f2 = _check_training_data(features, direction, depth)
     dtype = jnp.asarray(np.zeros(1)).dtype
     X = jnp.asarray(X, dtype)

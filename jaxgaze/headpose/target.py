@@ -186,7 +186,7 @@ def target_point(
     *,
     max_length: float = MAX_LENGTH_PX,
 ) -> Float[Array, "T 2"]:
-    """Where the gaze line meets the estimated object row (T-CYB Sec. VI, Fig. 9).
+    """Where the gaze line meets the estimated object row (Yücel et al. 2013, Sec. VI, Fig. 9).
 
     The ray ``h + s (cos d, sin d)``, ``s ≥ 0``, from the head centre ``h`` at image
     angle ``d`` (``f1``) meets the row ``y = depth_y`` (``f2``) at
@@ -219,7 +219,10 @@ def reaches_row(
     *,
     max_length: float = MAX_LENGTH_PX,
 ) -> Bool[Array, " T"]:
-    """True where :func:`target_point` lies on the row ``depth_y`` (the ray reaches it within ``max_length``)."""
+    """True where :func:`target_point` lies on the row ``depth_y`` (Yücel et al. 2013, Sec. VI, Fig. 9).
+
+    That is, where the ray reaches the row within ``max_length``.
+    """
     h, d, y = _check_target_inputs(head_centre, direction, depth_y, max_length)
     return _ray_to_row(h, d, y, max_length)[3]
 
@@ -252,7 +255,7 @@ def _check_window(window) -> int:
 
 
 def pool_labels(labels: Int[Array, " T"], window: int) -> PooledLabels:
-    """Pool per-frame labels into ``B = T // window`` bins of ``window`` consecutive frames.
+    """Pool per-frame labels into ``B = T // window`` bins of ``window`` frames (Yücel et al. 2013, Sec. VI).
 
     A bin is valid when all its frames carry one label (the experimenter looked
     at one object throughout); otherwise its label is −1. Trailing ``T % window``
@@ -278,8 +281,9 @@ def pool(
     labels: Int[Array, " T"] | None = None,
     circular: bool = False,
 ) -> Pooled:
-    """Average ``values`` over bins of ``window`` consecutive frames (T-CYB: 4 at 10 fps; CogSci: 5 at 25 fps).
+    """Average ``values`` over bins of ``window`` consecutive frames (Yücel et al. 2013, Sec. VI).
 
+    T-CYB pools 4 frames at 10 fps, CogSci 5 at 25 fps.
     Points (``(T, 2)``) and other values are averaged component-wise; with
     ``circular=True`` each column is an angle and the bin value is the circular
     mean ``atan2(Σ sin, Σ cos)`` (0 when the sines and cosines cancel exactly).
@@ -371,7 +375,9 @@ def _targets(target, n: int, K: int, valid) -> tuple[np.ndarray, np.ndarray]:
 
 
 def q1(points: Float[Array, "N 2"], boxes: Float[Array, "K 4"], target: Int[Array, " N"], *, valid=None) -> TargetRates:
-    """T-CYB eq. 14: per object, the fraction of its frames whose point lies in its box (edges included).
+    """``Q1`` (Yücel et al. 2013, eq. 14): per object, the fraction of its frames whose point lies in its box.
+
+    The box edges count as inside.
 
     Args:
         points: estimated target points (px).
@@ -388,7 +394,7 @@ def q1(points: Float[Array, "N 2"], boxes: Float[Array, "K 4"], target: Int[Arra
 
 
 def q2(points: Float[Array, "N 2"], centres: Float[Array, "K 2"], target: Int[Array, " N"], *, valid=None) -> TargetRates:
-    """T-CYB eq. 15: per object, the fraction of its frames whose nearest object centre is its own.
+    """``Q2`` (Yücel et al. 2013, eq. 15): per object, the fraction of its frames whose nearest centre is its own.
 
     Strict: a point equally near another centre is a miss. Arguments as in :func:`q1`.
     """
@@ -418,7 +424,7 @@ def angular_errors(estimated: Float[Array, " N"], true: Float[Array, " N"]) -> F
 
 
 def mean_angular_deviation(estimated: Float[Array, " N"], true: Float[Array, " N"], *, valid=None) -> float:
-    """CogSci Q1: mean of ``|wrap(estimated − true)|`` (radians) over the (valid) frames."""
+    """Mean of ``|wrap(estimated − true)|`` (radians) over the (valid) frames: Q1 (Yücel et al. 2009, CogSci)."""
     err = angular_errors(estimated, true).reshape(-1)
     v = _valid_mask(valid, err.shape[0])
     if not np.any(v):
@@ -504,7 +510,7 @@ def cone_rates(
     tolerance: float = TOLERANCE,
     valid=None,
 ) -> TargetRates:
-    """CogSci Q2(h) (``direction`` = head direction) or Q2(hg) (regressed gaze direction):
+    """Q2(h) (``direction`` = head direction) or Q2(hg) (regressed gaze direction) (Yücel et al. 2009, CogSci):
     per object, the fraction of its frames whose cone meets its box (:func:`cone_hits_box`)."""
     b = _boxes("boxes", boxes)
     a = _points("head_centre", head_centre)
@@ -523,7 +529,7 @@ def disk_rates(
     mask_radius: float = MASK_RADIUS_PX,
     valid=None,
 ) -> TargetRates:
-    """CogSci Q2(hgd): per object, the fraction of its target points whose disk of
+    """Q2(hgd) (Yücel et al. 2009, CogSci): per object, the fraction of its target points whose disk of
     ``mask_radius`` px (the T-CYB mask σ) meets its box (:func:`disk_hits_box`)."""
     b = _boxes("boxes", boxes)
     p = _points("points", points)
@@ -532,8 +538,9 @@ def disk_rates(
 
 
 def cmc_curve(angular_errors: Float[Array, " N"], thresholds: Float[Array, " M"]) -> Float[np.ndarray, " M"]:
-    """CogSci Fig. 5: accuracy ``mean(|wrap(error)| ≤ τ)`` for each threshold ``τ ≥ 0`` (radians).
+    """CMC curve (Yücel et al. 2009, CogSci, Fig. 5): accuracy ``mean(|wrap(error)| ≤ τ)`` per threshold ``τ ≥ 0``.
 
+    Thresholds and errors in radians.
     Non-decreasing in τ and 1 for ``τ ≥ π``. Raises on NaN, empty errors or negative thresholds.
     """
     e = _host("angular_errors", angular_errors).reshape(-1)

@@ -1,6 +1,6 @@
 """Head pose and gaze from OpenFace 2, an input of the speaker-prior gaze bias (Siegfried, Yu &
 Odobez, ICMI 2017, "Towards the use of social interaction conventions as prior for gaze model
-adaptation"; ``METHODS.md`` §3; who speaks when is :mod:`jaxgaze.io.speech`).
+adaptation", Sec. 3; who speaks when is :mod:`jaxgaze.io.speech`).
 
 Conventions (see ``docs/conventions.md``, "OpenFace and speaking status"):
 

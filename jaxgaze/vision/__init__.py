@@ -1,4 +1,4 @@
-"""The image side of joint attention (Yücel et al., T-CYB 2013 and CogSci 2012):
+"""The image side of joint attention (Yücel et al., T-CYB 2013 and CogSci 2009):
 face detection, cylindrical head-model tracking,
 bottom-up saliency and the attended object.
 

@@ -74,8 +74,9 @@ NO_LOCATION = "no location stands out"
 def target_point_covariance(
     head_centre, direction, depth_y, direction_variance, depth_variance, *, max_length: float = tg.MAX_LENGTH_PX
 ) -> np.ndarray:
-    """Delta-method covariance ``(T, 2, 2)`` (px²) of :func:`~jaxgaze.headpose.target.target_point`.
+    """Delta-method covariance ``(T, 2, 2)`` (px²) of the target points (Yücel et al. 2013, Sec. VI).
 
+    The points ``p`` are those of :func:`~jaxgaze.headpose.target.target_point`.
     ``Σ_t = var(f1_t) J₁J₁ᵀ + var(f2_t) J₂J₂ᵀ`` with ``J₁ = ∂p/∂f1``, ``J₂ = ∂p/∂f2`` at
     the predicted means: for a ray that reaches the row, ``p = (h_x + (f2 − h_y) cot f1, f2)``,
     so ``J₁ = (−(f2 − h_y) / sin² f1, 0)`` and ``J₂ = (cot f1, 1)``; a ray capped at
@@ -199,7 +200,9 @@ def attend_window(
     object_boxes=None,
     saliency_map=None,
 ) -> Attention:
-    """The attended location of one pooling window: saliency × regression posterior (module docstring).
+    """Attended location of one pooling window: saliency × regression posterior (Yücel et al. 2013, Sec. VI–VII).
+
+    The posterior is described in the module docstring.
 
     Args:
         image: the frame (``(H, W[, 3])``, uint8 or float in [0, 1]); may be None when
@@ -350,7 +353,7 @@ def attend_frames(
     head: CylinderHead = CylinderHead(),
     **track_options,
 ) -> AttentionWindows:
-    """The video pipeline (T-CYB Sec. IV–VI): head tracking → regression → pooling → attention.
+    """The video pipeline (Yücel et al. 2013, Sec. IV–VI): head tracking → regression → pooling → attention.
 
     :func:`~jaxgaze.vision.tracker.track_head` (frame 0 frontal, eye contact; ``initial_box``
     or face detection; ``track_options`` passed on) gives the pose and the head position;

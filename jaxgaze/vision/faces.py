@@ -217,7 +217,7 @@ def detect_faces(
     upsample: float | None = None,
     rotations_deg=(0.0,),
 ) -> list[FaceBox]:
-    """Faces in ``image`` found by OpenCV's Viola–Jones Haar cascades, best first.
+    """Faces in ``image`` found by OpenCV's Viola–Jones Haar cascades, best first (Viola & Jones 2001).
 
     ``image``: RGB ``(H, W, 3)`` or grey ``(H, W)``, uint8 0…255 or float 0…1 (checked
     by :func:`jaxgaze.vision.images.check_image`). ``kinds``: any of ``"frontal"``,
@@ -294,7 +294,7 @@ def _rotated(gray: np.ndarray, angle_deg: float) -> tuple[np.ndarray, np.ndarray
 
 
 def detect_eyes(image, face: FaceBox, *, upsample: float | None = None) -> list[EyeBox]:
-    """Eyes inside ``face`` (a :class:`FaceBox` of ``image``), at most two, left to right.
+    """Eyes inside ``face`` (a :class:`FaceBox` of ``image``), at most two, left to right (Viola & Jones 2001).
 
     Runs ``haarcascade_eye.xml`` (Viola–Jones) on the upper part of the face box
     (from 15 % to 65 % of its height), resized so the face is about 200 px wide

@@ -225,7 +225,7 @@ def render_head(
     background=None,
     R_optical_from_frontal=None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Ray-cast the textured cylinder: ``(image (H, W, 3) uint8 RGB, mask (H, W) bool)``.
+    """Ray-cast the textured cylinder (Yücel et al. 2013, Sec. IV): ``(image (H, W, 3) uint8 RGB, mask (H, W) bool)``.
 
     Args:
         pose: ``(pitch, yaw, roll)`` radians relative to the frontal frame.

@@ -54,7 +54,7 @@ _FLAT_RANGE = 1e-5
 
 
 def saliency(image, method: str = "itti") -> np.ndarray:
-    """Bottom-up saliency map of ``image``, float32 ``(H, W)`` in ``[0, 1]``.
+    """Bottom-up saliency map, float32 ``(H, W)`` in ``[0, 1]`` (Itti, Koch & Niebur 1998; Hou & Zhang 2007).
 
     ``image`` is ``(H, W, 3)`` RGB or ``(H, W)`` grey, uint8 (0..255) or float (0..1);
     it is checked by :func:`jaxgaze.vision.images.check_image` (``TypeError`` for other
@@ -96,7 +96,7 @@ def saliency(image, method: str = "itti") -> np.ndarray:
 
 
 def itti_normalize(feature_map, *, threshold: float = 0.1) -> np.ndarray:
-    """Itti's map normalisation operator N(·) (PAMI 1998, Sec. 2, Fig. 2).
+    """Itti's map normalisation operator N(·) (Itti, Koch & Niebur 1998, Sec. 2, Fig. 2).
 
     1. Scale the map to the fixed range ``[0, 1]`` (``M = 1``; the minimum goes to 0).
     2. Find its local maxima: 8-connected plateaus that equal their 3 × 3 neighbourhood
@@ -130,7 +130,7 @@ def itti_normalize(feature_map, *, threshold: float = 0.1) -> np.ndarray:
 
 
 def gaussian_mask(shape, centres_xy, sigma_px: float = 10.0) -> np.ndarray:
-    """Search envelope: the pointwise **maximum** of unit-height isotropic Gaussians.
+    """Search envelope (Yücel et al. 2013, Sec. VI): the pointwise **maximum** of unit-height isotropic Gaussians.
 
     ``shape`` is ``(H, W)`` (or an image shape ``(H, W, 3)``, whose first two entries
     are used). ``centres_xy`` is ``(2,)`` or ``(n, 2)`` points ``(x, y)`` in image
@@ -181,7 +181,7 @@ class Fixations(NamedTuple):
 
 
 def winner_take_all(saliency_map, num_fixations: int, *, ior_radius_px: float = 20.0, mask=None) -> Fixations:
-    """Pick up to ``num_fixations`` locations by winner-take-all with inhibition of return.
+    """Pick up to ``num_fixations`` locations: winner-take-all, inhibition of return (Yücel et al. 2013, Sec. VI).
 
     The map (times ``mask``, if given — e.g. :func:`gaussian_mask` around pooled
     target-point estimates) is searched for its maximum; the winner is recorded and
@@ -241,7 +241,7 @@ def winner_take_all(saliency_map, num_fixations: int, *, ior_radius_px: float = 
 
 
 def salient_region(saliency_map, xy, *, threshold_fraction: float = 0.5) -> tuple[float, float, float, float]:
-    """Bounding box ``(x_min, y_min, x_max, y_max)`` of the salient blob at ``xy``.
+    """Bounding box ``(x_min, y_min, x_max, y_max)`` of the salient blob at ``xy`` (Yücel et al. 2013, Sec. VI).
 
     Region growing (Yücel et al. Sec. VI): the pixels whose saliency is at least
     ``threshold_fraction × s`` form a binary image, ``s`` the saliency of the pixel that

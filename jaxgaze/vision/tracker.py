@@ -290,7 +290,7 @@ def track_head(
     max_steps: int = 20,
     grid: tuple[int, int] = (48, 48),
 ) -> HeadTrack:
-    """Track the 6-DoF head pose through ``frames`` with the cylindrical head model.
+    """Track the 6-DoF head pose through ``frames`` with the cylinder model (Yücel et al. 2013, Sec. IV, eq. 1–4).
 
     Args:
         frames: a sequence, array ``(T, H, W[, 3])`` or iterator of images (grey or

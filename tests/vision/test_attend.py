@@ -188,7 +188,7 @@ def test_saliency_raises_q1_above_regression_alone(table_top):
         print(f"Q1/Q2 regression + {m}: {q[0]:.2f}/{q[1]:.2f}")
         assert q[0] > regr[0] + 0.05 and q[0] > frames[0] + 0.05
         assert q[1] > regr[1] - 0.1  # Q2 stays (the nearest centre is already an object)
-    # the regression-alone scores are those of gp.evaluate (pooled T-CYB eq. 14–15)
+    # the regression-alone scores are those of papers.yucel2013 (pooled T-CYB eq. 14–15)
     s = sessions[0]
     pred = model.predict(head_pose_features(s.head_pose))
     points = np.asarray(tg.target_point(s.head_centre_image, pred.direction, pred.depth))
