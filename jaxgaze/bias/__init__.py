@@ -29,7 +29,7 @@ from jaxgaze.bias.estimators import (
     sample_bias_posterior,
     update_bias,
 )
-from jaxgaze.bias.speech import SpeechSegments, speaking_at, speaking_flags
+from jaxgaze.bias.speech import SpeechSegments, choose_partner, speaking_at, speaking_flags
 from jaxgaze.bias.looking import (
     FrameSelection,
     angular_error,
@@ -63,6 +63,7 @@ __all__ = [
     "SpeechSegments",
     "speaking_flags",
     "speaking_at",
+    "choose_partner",
     "FrameSelection",
     "angular_error",
     "candidate_frames",

@@ -30,7 +30,7 @@ from jaxgaze.bias.looking import (
     select_frames,
     target_direction_head,
 )
-from jaxgaze.bias.speech import SpeechSegments, speaking_at
+from jaxgaze.bias.speech import SpeechSegments, choose_partner, speaking_at
 
 __all__ = ["BIAS_FRAME_COLUMNS", "DEFAULT_NUM_FRAMES", "BiasAdaptation", "BiasInputError", "adapt_bias"]
 
@@ -137,15 +137,10 @@ def _frames_array(name: str, value, shape: tuple, num_frames: Optional[int]) -> 
 def _speaking(partner_speaking, partner, times, num_frames):
     """``(flags (T,), partner)`` from flags or from speech segments and the partner's name."""
     if isinstance(partner_speaking, SpeechSegments):
-        speakers = partner_speaking.speakers
-        if partner is None:
-            if len(speakers) != 1:
-                raise BiasInputError(f"several speakers ({', '.join(map(repr, speakers))}): name the partner "
-                                     "(the person looked at) with partner=", "partner")
-            partner = speakers[0]
-        elif partner not in speakers:
-            raise BiasInputError(f"unknown partner speaker {partner!r} (speakers: {', '.join(map(repr, speakers))})",
-                                 "partner")
+        try:
+            partner = choose_partner(partner_speaking, partner)
+        except ValueError as error:
+            raise BiasInputError(str(error), "partner") from None
         return speaking_at(partner_speaking, [partner], times)[0], partner
     flags = np.asarray(partner_speaking)
     if flags.shape != (num_frames,):

@@ -14,7 +14,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-__all__ = ["SpeechSegments", "speaking_flags", "speaking_at"]
+__all__ = ["SpeechSegments", "choose_partner", "speaking_flags", "speaking_at"]
 
 #: Frame and segment times are rounded to 1 ns before they are compared.
 TIME_DECIMALS = 9
@@ -33,6 +33,22 @@ class SpeechSegments(NamedTuple):
     def speakers(self) -> tuple:
         """The speaker names, sorted and unique."""
         return tuple(sorted(set(self.speaker)))
+
+
+def choose_partner(segments: SpeechSegments, partner: str | None, *, option: str = "partner=") -> str:
+    """The partner's speaker name in ``segments``: ``partner``, or the only speaker when it is ``None``.
+
+    Raises ``ValueError`` for an unknown name, or for ``None`` with several speakers (the
+    message says to pass ``option``, e.g. a command-line flag).
+    """
+    listed = ", ".join(repr(s) for s in segments.speakers)
+    if partner is None:
+        if len(segments.speakers) != 1:
+            raise ValueError(f"several speakers ({listed}): name the partner (the person looked at) with {option}")
+        return segments.speakers[0]
+    if partner not in segments.speakers:
+        raise ValueError(f"unknown partner speaker {partner!r} (speakers: {listed})")
+    return partner
 
 
 def speaking_flags(

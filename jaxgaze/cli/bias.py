@@ -9,7 +9,7 @@ import warnings
 import jax
 
 from jaxgaze.bias.adapt import DEFAULT_NUM_FRAMES, BIAS_FRAME_COLUMNS, BiasInputError, adapt_bias
-from jaxgaze.bias.speech import speaking_at
+from jaxgaze.bias.speech import choose_partner, speaking_at
 from jaxgaze.cli._common import (CommandError, check_output, int_at_least, positive_float, show_progress, summary,
                                  warn, writing)
 from jaxgaze.io.bias_report import BIAS_JSON_FORMAT, bias_record, write_bias_report
@@ -146,13 +146,10 @@ def _speech(args):
         raise CommandError(f"the RTTM holds several recordings (file ids {', '.join(ids)}); choose one with "
                            "--speech-file-id", args.speech)
     segments = read_rttm(args.speech, file_id=args.speech_file_id) if rttm else read_segments_csv(args.speech)
-    listed = ", ".join(f"'{s}'" for s in segments.speakers)
-    if args.partner is None and len(segments.speakers) != 1:
-        raise CommandError(f"several speakers ({listed}): name the partner (the person looked at) with --partner",
-                           args.speech)
-    if args.partner not in (None,) + segments.speakers:
-        raise CommandError(f"unknown partner speaker '{args.partner}' (speakers in the file: {listed})", args.speech)
-    return segments, args.partner or segments.speakers[0]
+    try:
+        return segments, choose_partner(segments, args.partner, option="--partner")
+    except ValueError as error:
+        raise CommandError(str(error), args.speech) from None
 
 
 def run(args) -> int:
