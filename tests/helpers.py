@@ -25,7 +25,6 @@ __all__ = [
     "bias_evaluation_dyads",
     "tabletop_sessions",
     "tabletop_scene",
-    "tabletop_video",
     "faces",
 ]
 
@@ -86,8 +85,3 @@ def tabletop_scene(session_args: tuple, index: int, seed: int) -> simulate.Rende
 def faces(seed: int, num_faces: int, **options) -> simulate.SimulatedFaces:
     """Simulated faces at known poses with noisy, partly missing feature hypotheses."""
     return simulate.simulate_faces(jax.random.key(seed), num_faces, **options)
-
-
-def tabletop_video(session, seed: int, **options):
-    """A rendered video of ``session`` (not memoised: the options vary per test)."""
-    return simulate.render_tabletop_video(session, key=jax.random.key(seed), **options)

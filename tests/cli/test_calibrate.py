@@ -15,6 +15,7 @@ import os
 import jax
 import numpy as np
 import pytest
+from tests import helpers as zoo
 from tests.cli.helpers import assert_failed, run_main
 
 from jaxgaze.cli import main
@@ -24,7 +25,6 @@ from jaxgaze.io.rays import CSV_COLUMNS
 from jaxgaze.geometry import rotation_matrix_to_quaternion
 from jaxgaze.io.poses import write_colmap_images, write_pose_csv
 from jaxgaze.poses import CameraPoses
-from jaxgaze.simulate.calibration import simulate_calibration_session
 
 DATA = os.path.join(os.path.dirname(os.path.dirname(__file__)), "data")
 POSE_HEADER = "frame,qw,qx,qy,qz,cx,cy,cz\n"
@@ -50,7 +50,7 @@ def perpendicular_error(estimate, truth, direction):
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     """Wearer A as a pose CSV ``alice.csv``, wearer B as COLMAP ``bob.txt``; with the truth."""
-    s = simulate_calibration_session(jax.random.key(0), num_frames=80)
+    s = zoo.calibration_session(80)
     directory = tmp_path_factory.mktemp("session")
     frames = np.asarray(s.frame_ids)
     a = CameraPoses(np.asarray(s.R_camera_from_world_a, float), np.asarray(s.centers_a, float), frames)
