@@ -20,6 +20,7 @@ from jaxgaze.rays import GazeRays
 
 __all__ = [
     "cone_log_density",
+    "cone_direction_log_density",
     "sample_gaze_directions",
     "sample_points_of_regard",
     "ray_kernels",
@@ -46,6 +47,22 @@ def cone_log_density(rays: GazeRays, point: Float[Array, "3"]) -> Float[Array, "
     safe_t = jnp.where(in_front, t, 1.0)
     log_p = -_LOG_2PI - 2.0 * jnp.log(h * safe_t) - jnp.sum(d * d, axis=-1) / (2.0 * h**2)
     return jnp.where(in_front & rays.mask, log_p, -jnp.inf)
+
+
+def cone_direction_log_density(cosine: Float[Array, "..."], bandwidth: Float[Array, "..."]) -> Float[Array, "..."]:
+    """Log density of a unit gaze direction around a cone axis, per steradian (Park et al. 2012, eq. 3, for directions).
+
+    Park's cone puts the direction's offset on the plane at unit depth at
+    ``N(0, h² I₂)``. Written on the sphere, where it stays proper at any angle,
+    that is the Fisher density with concentration ``κ = 1/h²``:
+    ``log p(v | u) = log κ − log 2π − log(1 − e^{−2κ}) + κ (uᵀv − 1)``, which for
+    small angles equals the plane Gaussian (``κ(uᵀv − 1) ≈ −θ²/2h²``). Takes the
+    cosine ``uᵀv`` of the direction and the axis; shapes broadcast, and the
+    normaliser is evaluated at the bandwidth's shape only.
+    """
+    kappa = 1.0 / jnp.square(bandwidth)
+    log_normaliser = jnp.log(kappa) - math.log(2.0 * math.pi) - jnp.log(-jnp.expm1(-2.0 * kappa))
+    return log_normaliser + kappa * (cosine - 1.0)
 
 
 def sample_gaze_directions(key: PRNGKeyArray, rays: GazeRays) -> Float[Array, "N 3"]:

@@ -61,6 +61,10 @@ class RESULTS(eqx.Enumeration):
         "degenerate points of regard: the points are collinear through the camera centre (the fitted line "
         "passes through the origin), so the apex (centre of the eyes) is undefined"
     )
+    not_mixed = (
+        "the sampler did not mix: split r-hat above 1.05, bulk or tail ESS below 100, or more than 1% divergent "
+        "transitions; the draws are not a reliable posterior; run more warm-up and draws, or check the data"
+    )
 
 
 #: Member names in code order (``NAMES[i]`` is the member whose code is ``i``); these are
@@ -75,6 +79,7 @@ NAMES = (
     "degenerate",
     "behind_camera",
     "collinear_through_camera",
+    "not_mixed",
 )
 
 

@@ -26,6 +26,7 @@ __all__ = [
     "tabletop_sessions",
     "tabletop_scene",
     "faces",
+    "conversation",
 ]
 
 
@@ -85,3 +86,11 @@ def tabletop_scene(session_args: tuple, index: int, seed: int) -> simulate.Rende
 def faces(seed: int, num_faces: int, **options) -> simulate.SimulatedFaces:
     """Simulated faces at known poses with noisy, partly missing feature hypotheses."""
     return simulate.simulate_faces(jax.random.key(seed), num_faces, **options)
+
+
+@functools.cache
+def conversation(num_people: int = 3, num_objects: int = 1, duration_s: float = 30.0, fps: float = 5.0,
+                 seed: int = 0) -> simulate.Conversation:
+    """A group conversation with speaking turns, shared objects and known biases (the joint model's scene)."""
+    return simulate.simulate_conversation(jax.random.key(seed), num_people=num_people, num_objects=num_objects,
+                                          duration_s=duration_s, fps=fps)

@@ -1,26 +1,27 @@
-"""Command-line interface: ``jaxgaze demo``, ``concurrences``, ``calibrate``, ``bias``, ``attend`` and ``fit-gaze``.
+"""Command-line interface: ``jaxgaze demo``, ``concurrences``, ``calibrate``, ``bias``, ``joint``, ``attend`` and ``fit-gaze``.
 
 One module per command, each ``read (jaxgaze.io) → library call → write (jaxgaze.io) → one
 summary line``: :mod:`~jaxgaze.cli.demo` (a simulated meeting against the truth),
 :mod:`~jaxgaze.cli.concurrences` (gaze concurrences, Park et al. 2012),
 :mod:`~jaxgaze.cli.calibrate` (a wearer's gaze ray), :mod:`~jaxgaze.cli.bias` (speaker-prior
-gaze bias, Siegfried et al. 2017), :mod:`~jaxgaze.cli.attend` and :mod:`~jaxgaze.cli.fit_gaze`
-(attention from head pose, Yücel et al. 2013). Exit status 0 on success; 2 for bad input, with
-one line ``jaxgaze: error: <what> (<file>:<line>)`` on stderr and no partial output file;
-130 on Ctrl-C.
+gaze bias, Siegfried et al. 2017), :mod:`~jaxgaze.cli.joint` (biases, cone widths, who looks at whom
+and concurrences of a group, inferred together), :mod:`~jaxgaze.cli.attend` and
+:mod:`~jaxgaze.cli.fit_gaze` (attention from head pose, Yücel et al. 2013). Exit status 0 on
+success (``joint``: 1 when its fit did not succeed, files written); 2 for bad input, with one line
+``jaxgaze: error: <what> (<file>:<line>)`` on stderr and no partial output file; 130 on Ctrl-C.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from jaxgaze.cli import attend, bias, calibrate, concurrences, demo, fit_gaze
+from jaxgaze.cli import attend, bias, calibrate, concurrences, demo, fit_gaze, joint
 from jaxgaze.cli._common import run_command
 
 __all__ = ["main", "build_parser"]
 
 #: The command modules, in the order of ``jaxgaze --help``.
-COMMANDS = (demo, concurrences, calibrate, bias, attend, fit_gaze)
+COMMANDS = (demo, concurrences, calibrate, bias, joint, attend, fit_gaze)
 
 
 def build_parser() -> argparse.ArgumentParser:

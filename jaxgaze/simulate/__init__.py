@@ -1,5 +1,5 @@
 """Every simulator of jaxgaze, with ground truth: scenes for the social saliency field,
-calibration sessions, dyadic conversations, table-top sessions, faces, rendered
+calibration sessions, dyadic and multi-party conversations, table-top sessions, faces, rendered
 scenes and videos. Models never import this package.
 """
 
@@ -24,6 +24,13 @@ from jaxgaze.simulate.dyadic import (
     dyadic_config,
     simulate_dyadic,
     simulate_dyadic_sessions,
+)
+from jaxgaze.simulate.conversation import (
+    ConversationConfig,
+    Conversation,
+    conversation_config,
+    simulate_conversation,
+    simulate_conversations,
 )
 from jaxgaze.simulate.tabletop import (
     TabletopConfig,
@@ -66,6 +73,11 @@ __all__ = [
     "dyadic_config",
     "simulate_dyadic",
     "simulate_dyadic_sessions",
+    "ConversationConfig",
+    "Conversation",
+    "conversation_config",
+    "simulate_conversation",
+    "simulate_conversations",
     "TabletopConfig",
     "PersonTraits",
     "TabletopSession",

@@ -1,0 +1,210 @@
+"""``jaxgaze joint``: read one gaze file per person and the speech → :func:`jaxgaze.joint.fit_joint` → netCDF and CSV."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import os
+import re
+import sys
+import warnings
+
+import numpy as np
+
+from jaxgaze.cli._common import CommandError, check_output, int_at_least, positive_float, show_progress, warn, writing
+from jaxgaze.io.joint import (JOINT_FRAMES_FORMAT, JOINT_INPUTS_FORMAT, joint_frame_columns, read_joint_gaze, read_speech,
+                              speaking_by_person, write_joint_frames, write_joint_netcdf)
+from jaxgaze.io.text import atomic_path
+
+_DESCRIPTION = """\
+Joint inference of a group recording (Park et al. 2012; Siegfried, Odobez et al.
+2017): each person's gaze bias and cone width, a speaker prior, who looks at whom,
+mutual gaze and the shared gaze concurrences, in one model.
+
+""" + JOINT_INPUTS_FORMAT + """\
+OUT.nc is the posterior (arviz InferenceData as netCDF: arviz.from_netcdf).
+""" + JOINT_FRAMES_FORMAT + """\
+Exit status 0; 1 when the fit did not succeed (e.g. the sampler did not mix: files
+written, one line on stderr says why); 2 bad input (no output file); 130 Ctrl-C.
+"""
+
+_DEFAULT_FPS = 10.0
+_RESERVED = re.compile(r"^(elsewhere|concurrence[\s_]*\d+)$", re.IGNORECASE)
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """The ``joint`` subcommand (its arguments and help)."""
+    p = subparsers.add_parser("joint", formatter_class=argparse.RawDescriptionHelpFormatter, description=_DESCRIPTION,
+                              help="infer gaze biases, cone widths, who looks at whom and the shared gaze "
+                                   "concurrences of a group recording together (one gaze file per person)")
+    a = p.add_argument
+    a("gaze", nargs="+", metavar="GAZE", help="one person's gaze and head pose per frame (see above)")
+    a("--speech", default=None, metavar="SPEECH", help="who speaks when: RTTM (.rttm) or CSV (.csv: start, end, "
+      "speaker; seconds); another extension is read as RTTM if it has SPEAKER lines, else as CSV")
+    a("--speech-file-id", default=None, metavar="ID", help="the recording (2nd field) of an RTTM that holds several")
+    a("--speaker-map", default=None, metavar="NAME=SPEAKER,...",
+      help="the speaker id of a person in SPEECH when it is not the person's name, e.g. ann=spk1,ben=spk2")
+    a("--people", default=None, metavar="A,B,...", help="one name per GAZE file, in order (default: file stems)")
+    a("--same-camera", action="store_true",
+      help="the OpenFace files come from one camera, so they share its frame (needed for several OpenFace files)")
+    a("--out", required=True, metavar="OUT.nc", help="the posterior as netCDF (replaced only on success)")
+    a("--per-frame", default=None, metavar="PER_FRAME.csv", help="also write the per-frame table described above")
+    a("--fps", default=None, metavar="FPS", help=f"frame rate (default: the timestamps' rate, else "
+      f"{_DEFAULT_FPS:g}); with timestamps it must agree with them")
+    a("--method", choices=("nuts", "svi"), default="nuts", help="nuts (exact; a minute or two of recording) or "
+      "svi (mean-field variational, frames subsampled; long recordings) (default nuts)")
+    a("--warmup", default="500", metavar="N", help="NUTS warm-up steps (default 500)")
+    a("--draws", default="500", metavar="N", help="posterior draws, at least 4 (default 500)")
+    a("--steps", default="3000", metavar="N", help="SVI optimisation steps, at least 10 (default 3000)")
+    a("--window-s", default="60", metavar="S", help="a concurrence stays put within windows of S s (default 60)")
+    a("--seed", default="0", metavar="S", help="random seed (default 0)")
+    a("--min-confidence", default="0.75", metavar="C", help="OpenFace: drop frames with confidence < C (default 0.75)")
+    a("-q", "--quiet", action="store_true", help="no progress bar and no summary on stdout")
+    return p
+
+
+def _number(option: str, text, parse):
+    """``parse(text)``; its error as a one-line :class:`CommandError` naming ``option``."""
+    try:
+        return None if text is None else parse(str(text))
+    except argparse.ArgumentTypeError as error:
+        raise CommandError(f"{option}: {error}") from None
+    except ValueError:
+        raise CommandError(f"{option}: not a number: {text!r}") from None
+
+
+def _people(args) -> list[str]:
+    """One unique name per GAZE file: --people, else the file stems."""
+    source = "--people" if args.people else "file stems"
+    names = ([n.strip() for n in args.people.split(",")] if args.people
+             else [os.path.splitext(os.path.basename(path))[0] for path in args.gaze])
+    if len(names) != len(args.gaze):
+        raise CommandError(f"--people names {len(names)} people for {len(args.gaze)} GAZE files; one per file")
+    for name in names:
+        if not name or _RESERVED.match(name):
+            raise CommandError(f"{source}: the person name {name!r} is empty or reserved for a target of the model")
+    duplicated = [n for n in dict.fromkeys(names) if names.count(n) > 1]
+    if duplicated:
+        raise CommandError(f"two people are named {duplicated[0]!r} ({source}); name them with --people A,B,...")
+    try:
+        joint_frame_columns(names + ["elsewhere"])
+    except ValueError as error:
+        raise CommandError(f"{source}: {error}") from None
+    return names
+
+
+def _speaker_map(args, people) -> dict:
+    """``{person: speaker id}`` of --speaker-map."""
+    if args.speech is None and (args.speaker_map or args.speech_file_id):
+        raise CommandError("--speaker-map and --speech-file-id need --speech")
+    mapping = {}
+    for item in args.speaker_map.split(",") if args.speaker_map else []:
+        name, sep, speaker = (s.strip() for s in item.partition("="))
+        if not (sep and name and speaker) or name in mapping:
+            raise CommandError(f"--speaker-map: expected NAME=SPEAKER items, one per person, got {item!r}")
+        if name not in people:
+            raise CommandError(f"--speaker-map: unknown person {name!r} (people: {', '.join(people)})")
+        mapping[name] = speaker
+    return mapping
+
+
+def _check_inputs(args, gaze) -> None:
+    """One frame of reference for every file; --fps agrees with the timestamps."""
+    openface = [p for p, f in zip(args.gaze, gaze.formats) if f == "openface"]
+    if openface and len(openface) < len(args.gaze):
+        raise CommandError("cannot mix OpenFace files (camera frame) with gaze CSVs (world frame): convert them "
+                           "all to one world frame", openface[0])
+    if len(openface) > 1 and not args.same_camera:
+        raise CommandError(f"{len(openface)} OpenFace files, each in its own camera frame: pass --same-camera if one "
+                           "camera filmed everyone, else convert them to gaze CSVs in one world frame")
+    rate = gaze.timestamp_rate
+    if args.fps is not None and rate is not None and abs(args.fps - rate) > 0.01 * rate:
+        raise CommandError(f"--fps {args.fps:g} disagrees with the timestamps of the GAZE files ({rate:.3f} frames "
+                           "per second); leave --fps out to use the timestamps")
+
+
+def _check_outputs(args) -> None:
+    outputs = {}
+    for option, path, what in (("--out", args.out, "output"), ("--per-frame", args.per_frame, "per-frame table")):
+        if path is not None:
+            check_output(path, what)
+            if os.path.abspath(path) in outputs:
+                raise CommandError("--per-frame and --out must be different files", path)
+            outputs[os.path.abspath(path)] = option
+    for path in list(args.gaze) + ([args.speech] if args.speech else []):
+        if os.path.abspath(path) in outputs:
+            raise CommandError(f"{outputs[os.path.abspath(path)]} would overwrite an input file", path)
+
+
+def _summary(posterior, data, written) -> str:
+    bias, width = (np.asarray(a) * (180.0 / math.pi) for a in (posterior.bias, posterior.cone_width))
+    stats = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in posterior.diagnostics.items())
+    return "\n".join([
+        f"people: {', '.join(posterior.people)} ({data.num_frames} frames at {data.fps:g} fps, "
+        + ("with speech)" if data.has_speech else "no speech)"),
+        "bias (yaw, tilt) deg: " + "; ".join(f"{n} ({b[0]:+.2f}, {b[1]:+.2f})" for n, b in zip(posterior.people, bias)),
+        "cone width deg: " + "; ".join(f"{n} {w:.2f}" for n, w in zip(posterior.people, width)),
+        f"concurrences: {posterior.num_concurrences}",
+        f"diagnostics ({posterior.method}): {stats}",
+        f"written to {' and '.join(written)}"])
+
+
+def run(args) -> int:
+    """``jaxgaze joint``: GAZE files and speech → :func:`~jaxgaze.joint.fit_joint` → OUT.nc (and --per-frame)."""
+    import jax
+
+    from jaxgaze.joint import fit_joint, joint_data
+    from jaxgaze.results import RESULTS
+
+    warmup, draws, steps, seed, window_s, min_confidence, args.fps = (_number(o, v, t) for o, v, t in (
+        ("--warmup", args.warmup, int_at_least(1)), ("--draws", args.draws, int_at_least(4)),
+        ("--steps", args.steps, int_at_least(10)), ("--seed", args.seed, int), ("--window-s", args.window_s,
+        positive_float), ("--min-confidence", args.min_confidence, float), ("--fps", args.fps, positive_float)))
+    _check_outputs(args)
+    people = _people(args)
+    speaker_map = _speaker_map(args, people)
+    with warnings.catch_warnings(record=True) as caught:  # printed once every input has been checked
+        warnings.simplefilter("always")
+        gaze = read_joint_gaze(args.gaze, min_confidence=min_confidence)
+        _check_inputs(args, gaze)
+        fps = args.fps or gaze.timestamp_rate or _DEFAULT_FPS
+        times = gaze.times(fps)
+        speaking, unmatched = None, []
+        if args.speech is not None:
+            segments = read_speech(args.speech, file_id=args.speech_file_id)
+            try:
+                speaking, unmatched = speaking_by_person(segments, people, times, speaker_map)
+            except ValueError as error:
+                raise CommandError(f"--speaker-map: {error}", args.speech) from None
+    for note in [str(w.message) for w in caught] + ([f"{args.speech}: speaker(s) {', '.join(map(repr, unmatched))} "
+                                                     f"match no person (people: {', '.join(people)}) and are "
+                                                     "ignored; map them with --speaker-map NAME=SPEAKER"]
+                                                    if unmatched else []):
+        warn(note)
+    try:
+        data = joint_data(gaze.eye_positions, gaze.R_world_from_head, gaze.gaze_angles, present=gaze.present,
+                          speaking=speaking, people=people, fps=fps, window_s=window_s)
+        with warnings.catch_warnings(record=True) as caught:  # NumPy's and arviz's numerical noise is dropped
+            warnings.simplefilter("always")
+            posterior = fit_joint(data, jax.random.key(seed), method=args.method, num_warmup=warmup,
+                                  num_samples=draws, num_steps=steps, progress=show_progress(args), throw=False)
+    except ValueError as error:  # joint_data counts frames from 0: name them by their ids in the files
+        raise CommandError("the recording is not usable: " + re.sub(r"\bframe (\d+)\b", lambda m: (
+            f"frame {gaze.frames[min(int(m[1]), gaze.frames.size - 1)]}"), str(error))) from None
+    for w in caught:
+        if issubclass(w.category, UserWarning) and "jaxgaze" in os.path.normpath(w.filename).split(os.sep):
+            warn(str(w.message))
+    # Both go to temporary files, renamed only when both are complete (an error or Ctrl-C leaves neither).
+    with writing(args.out, also={args.out: "output", args.per_frame: "per-frame table"}), \
+            contextlib.ExitStack() as stack:
+        out_tmp = stack.enter_context(atomic_path(args.out))
+        if args.per_frame is not None:
+            write_joint_frames(stack.enter_context(atomic_path(args.per_frame)), posterior, gaze.frames, times)
+        write_joint_netcdf(out_tmp, posterior)
+    if not args.quiet:
+        print(_summary(posterior, data, [args.out] + ([args.per_frame] if args.per_frame else [])))
+    if not posterior.succeeded:
+        print(f"jaxgaze joint: {RESULTS[posterior.result]}", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,286 @@
+"""The files of the joint model (``jaxgaze joint``): one gaze file per person aligned on their frames,
+the speech as per-person flags, and the outputs, the posterior as netCDF and its per-frame table as CSV.
+
+Both writers are atomic (:func:`~jaxgaze.io.text.atomic_path`): on any failure, Ctrl-C
+included, no partial file is left and an existing file is untouched.
+
+The posterior is read by attribute only (``people``, ``candidates``, ``membership (T, P, C)``,
+``mutual (T, P, P)``, ``idata``), as :class:`jaxgaze.joint.JointPosterior` has them.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import re
+import warnings
+from typing import NamedTuple, Optional
+
+import numpy as np
+
+from jaxgaze.bias.speech import SpeechSegments, speaking_at
+from jaxgaze.io.gaze import GazeFileError, GazeTrack, read_gaze
+from jaxgaze.io.speech import SpeechFileError, read_rttm, read_segments_csv
+from jaxgaze.io.text import atomic_path, format_float, read_text
+
+__all__ = ["JOINT_FRAME_COLUMNS", "JOINT_FRAMES_FORMAT", "JOINT_INPUTS_FORMAT", "JointGaze", "read_joint_gaze",
+           "read_speech", "speaking_by_person", "joint_frame_columns", "write_joint_frames", "write_joint_netcdf"]
+
+#: Timestamps of one frame in two files may differ by this much (seconds).
+TIME_TOLERANCE_S = 1e-3
+
+
+class JointGaze(NamedTuple):
+    """The gaze files of a group, aligned on the union of their frame ids (``T`` frames, ``P`` people).
+
+    ``frames (T,)`` int64; ``time (T,)`` seconds when every file has timestamps, else ``None``;
+    ``eye_positions (T, P, 3)``, ``R_world_from_head (T, P, 3, 3)``, ``gaze_angles (T, P, 2)``
+    (NaN, identity and NaN where a person is absent); ``present (T, P)``; ``tracks`` the
+    :class:`~jaxgaze.io.gaze.GazeTrack` of each file; ``paths``.
+    """
+
+    frames: np.ndarray
+    time: Optional[np.ndarray]
+    eye_positions: np.ndarray
+    R_world_from_head: np.ndarray
+    gaze_angles: np.ndarray
+    present: np.ndarray
+    tracks: tuple
+    paths: tuple
+
+    @property
+    def formats(self) -> tuple:
+        """``"csv"`` or ``"openface"`` per file."""
+        return tuple(t.format for t in self.tracks)
+
+    @property
+    def some_timed(self) -> bool:
+        """Whether some file, but not every one, has timestamps (they are then ignored)."""
+        return self.time is None and any(t.time is not None for t in self.tracks)
+
+    @property
+    def timestamp_rate(self) -> Optional[float]:
+        """Frames per second from the timestamps (``None`` without them or with one frame)."""
+        if self.time is None or self.frames.size < 2:
+            return None
+        return round(float(1.0 / np.median(np.diff(self.time) / np.diff(self.frames))), 6)
+
+    def times(self, fps: float) -> np.ndarray:
+        """``(T,)`` frame times: the timestamps, else ``frame / fps``."""
+        return self.frames / float(fps) if self.time is None else self.time
+
+
+def _aligned_time(tracks: list[GazeTrack], paths, frames) -> Optional[np.ndarray]:
+    if any(t.time is None for t in tracks):
+        return None
+    time = np.full(frames.size, np.nan)
+    owner = np.full(frames.size, -1)
+    for p, track in enumerate(tracks):
+        rows = np.searchsorted(frames, track.frame)
+        known = owner[rows] >= 0
+        bad = np.flatnonzero(known & (np.abs(time[rows] - track.time) > TIME_TOLERANCE_S))
+        if bad.size:
+            i, row = int(bad[0]), int(rows[bad[0]])
+            raise GazeFileError(f"the gaze files disagree on the time of frame {frames[row]}: {time[row]:g} s in "
+                                f"{os.fspath(paths[owner[row]])}, {track.time[i]:g} s here", paths[p],
+                                track.line_of(i))
+        time[rows[~known]] = track.time[~known]
+        owner[rows[~known]] = p
+    bad = np.flatnonzero(np.diff(time) <= 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise GazeFileError(f"timestamps must increase with the frame across the files: frame {frames[i]} at "
+                            f"{time[i]:g} s is not after frame {frames[i - 1]} at {time[i - 1]:g} s", paths[owner[i]])
+    return time
+
+
+def read_joint_gaze(paths, *, min_confidence: float = 0.75) -> JointGaze:
+    """Read one gaze file per person (:func:`~jaxgaze.io.gaze.read_gaze`: our gaze CSV or an OpenFace 2
+    CSV) and align them on the union of their frame ids; a person missing from a frame is absent there.
+
+    Every file must be in one frame of reference (checking that is the caller's: see
+    :attr:`JointGaze.formats`). Warns when some files, not all, have timestamps. Raises the readers' errors, and :class:`~jaxgaze.io.gaze.GazeFileError`
+    when the files' timestamps disagree on a frame or do not increase with the frame.
+    """
+    paths = tuple(paths)
+    tracks = [read_gaze(path, min_confidence=min_confidence) for path in paths]
+    frames = np.unique(np.concatenate([t.frame for t in tracks]))
+    T, P = frames.size, len(tracks)
+    eyes, gaze = np.full((T, P, 3), np.nan), np.full((T, P, 2), np.nan)
+    R = np.broadcast_to(np.eye(3), (T, P, 3, 3)).copy()
+    present = np.zeros((T, P), dtype=bool)
+    for p, track in enumerate(tracks):
+        rows = np.searchsorted(frames, track.frame)
+        eyes[rows, p], R[rows, p], gaze[rows, p] = track.eye, track.R_world_from_head, track.gaze_angles
+        present[rows, p] = True
+    gaze = JointGaze(frames, _aligned_time(tracks, paths, frames), eyes, R, gaze, present, tuple(tracks), paths)
+    if gaze.some_timed:
+        warnings.warn("not every gaze file has timestamps: they are ignored and frame f is at f / fps seconds",
+                      stacklevel=2)
+    return gaze
+
+
+def read_speech(path, *, file_id: Optional[str] = None) -> SpeechSegments:
+    """Speech segments from an RTTM (``.rttm``) or a segments CSV (``.csv``); another extension is read as
+    RTTM if it has SPEAKER lines, else as CSV. An RTTM of several recordings needs ``file_id``."""
+    text = read_text(path, SpeechFileError, "speech")
+    ids = list(dict.fromkeys(f[1] for f in map(str.split, text.splitlines()) if len(f) >= 2 and f[0] == "SPEAKER"))
+    ext = os.path.splitext(os.fspath(path))[1].lower()
+    rttm = ext == ".rttm" or (ext != ".csv" and bool(ids))
+    if file_id is not None and not rttm:
+        raise SpeechFileError("a file id is only for RTTM speech files", path)
+    if rttm and file_id is None and len(ids) > 1:
+        raise SpeechFileError(f"the RTTM holds several recordings (file ids {', '.join(ids)}); choose one", path)
+    return read_rttm(path, file_id=file_id) if rttm else read_segments_csv(path)
+
+
+def speaking_by_person(segments: SpeechSegments, people, times, speaker_map: Optional[dict] = None
+                       ) -> tuple[dict, list]:
+    """``({person: (T,) bool flags}, unmatched speakers)``: each person's speech at ``times`` (seconds).
+
+    A person's speaker id is ``speaker_map[person]``, else their name; people without segments
+    are left out (they never speak); speakers of no person are listed. Overlapping speech of
+    several people is expected (no warning). ``ValueError`` for a mapped speaker that has no segment.
+    """
+    speaker_map = dict(speaker_map or {})
+    speakers = segments.speakers
+    missing = [s for s in speaker_map.values() if s not in speakers]
+    if missing:
+        raise ValueError(f"speaker(s) {', '.join(map(repr, missing))} of the speaker map have no segments "
+                         f"(speakers: {', '.join(speakers)})")
+    speaker_of = {name: speaker_map.get(name, name) for name in people}
+    flags = {name: speaking_at(segments, [speaker], times)[0] for name, speaker in speaker_of.items()
+             if speaker in speakers}
+    return flags, [s for s in speakers if s not in set(speaker_of.values())]
+
+
+#: The fixed columns of the per-frame table; ``p_<candidate>`` columns go between ``probability`` and
+#: ``mutual_with`` (see :func:`joint_frame_columns`).
+JOINT_FRAME_COLUMNS = ("frame", "time", "person", "present", "target", "probability", "mutual_with", "p_mutual")
+
+#: The inputs of ``jaxgaze joint`` in words (its help shows it).
+JOINT_INPUTS_FORMAT = """\
+GAZE is one file per person, each one of
+  * our gaze CSV (see 'jaxgaze bias -h'): frame, yaw, tilt (head frame,
+    radians), qw, qx, qy, qz (R_world_from_head), ex, ey, ez (eye midpoint,
+    world frame, metres), optional timestamp (seconds);
+  * an OpenFace 2 FeatureExtraction CSV (one face; --min-confidence). Each
+    OpenFace file is in its own camera's frame, so several of them are only
+    accepted with --same-camera (one camera filmed everyone).
+All files must share one world frame. A person is named by the file's stem
+unless --people is given. Frames are aligned on the union of the frame ids of
+all files; a person missing from a frame is absent there. Frame times are the
+timestamps when every file has them, else frame / --fps.
+
+--speech (RTTM or CSV of start, end, speaker; seconds, same clock) gives who
+speaks when; speakers are matched to the people by name (--speaker-map to map
+them). A speaker that matches nobody is ignored with a warning; a person with no
+speech never speaks. Without --speech there is no speaker prior.
+
+"""
+
+#: The per-frame table in words (the ``jaxgaze joint`` help shows it).
+JOINT_FRAMES_FORMAT = """\
+PER_FRAME.csv has one row per frame and person (frame-major):
+  frame, time (s), person, present (0/1),
+  target       the most probable target: a person's name, 'concurrence K'
+               (a shared gaze target found by the model) or 'elsewhere',
+  probability  the posterior probability of that target,
+  p_<candidate> the probability of every candidate (people, concurrence_0, ...,
+               elsewhere; blanks in names become '_'); they sum to 1,
+  mutual_with  the partner most probably in mutual gaze with the person
+               (each looks at the other), empty when that is 0 to 6 decimals,
+  p_mutual     that probability.
+Rows of an absent person have present 0 and every other cell empty.
+"""
+
+_DIGITS = 6
+
+
+def _column_name(candidate: str) -> str:
+    return "p_" + re.sub(r"\s+", "_", str(candidate).strip())
+
+
+def joint_frame_columns(candidates) -> tuple[str, ...]:
+    """The header of the per-frame table for ``candidates`` (people, concurrences, ``elsewhere``, in
+    membership order); ``ValueError`` when two candidates give the same ``p_`` column."""
+    probabilities = [_column_name(c) for c in candidates]
+    columns = JOINT_FRAME_COLUMNS[:6] + tuple(probabilities) + JOINT_FRAME_COLUMNS[6:]
+    seen = {}
+    for candidate, column in zip(candidates, probabilities):
+        if column in seen or column in JOINT_FRAME_COLUMNS:
+            other = seen.get(column, column)
+            raise ValueError(f"candidates {other!r} and {candidate!r} give the same column {column!r}; rename one")
+        seen[column] = candidate
+    return columns
+
+
+def _probability(value) -> str:
+    value = float(value)
+    if not math.isfinite(value):
+        return ""
+    return repr(round(min(max(value, 0.0), 1.0), _DIGITS))
+
+
+def write_joint_frames(path, posterior, frames, times) -> int:
+    """Write the per-frame table (:data:`JOINT_FRAMES_FORMAT`) of ``posterior`` atomically.
+
+    Args:
+        path: the CSV to write.
+        posterior: a :class:`~jaxgaze.joint.JointPosterior` (or anything with ``people``,
+            ``candidates``, ``membership (T, P, C)`` and ``mutual (T, P, P)``).
+        frames: ``(T,)`` frame ids of the rows of ``membership``.
+        times: ``(T,)`` their times, seconds.
+
+    Returns the number of rows written (``T · P``). Raises ``ValueError`` for shapes that
+    do not match; ``OSError`` propagates (no file is left).
+    """
+    people = tuple(str(p) for p in posterior.people)
+    candidates = tuple(str(c) for c in posterior.candidates)
+    membership = np.asarray(posterior.membership, dtype=np.float64)
+    mutual = np.asarray(posterior.mutual, dtype=np.float64)
+    if membership.ndim != 3 or membership.shape[1:] != (len(people), len(candidates)):
+        raise ValueError(f"membership must have shape (T, {len(people)}, {len(candidates)}) (frames, people, "
+                         f"candidates), got {membership.shape}")
+    T, P, _ = membership.shape
+    if mutual.shape != (T, P, P):
+        raise ValueError(f"mutual must have shape {(T, P, P)}, got {mutual.shape}")
+    frames, times = list(frames), list(times)
+    if len(frames) != T or len(times) != T:
+        raise ValueError(f"frames and times must give one value per frame of the posterior ({T}), got "
+                         f"{len(frames)} and {len(times)}")
+    columns = joint_frame_columns(candidates)
+    present = membership.sum(axis=-1) > 0
+    best = np.argmax(membership, axis=-1)
+    # Mutual gaze with oneself is not a thing: the diagonal never wins.
+    others = np.where(np.eye(P, dtype=bool)[None], -np.inf, mutual)
+    partner = np.argmax(others, axis=-1)
+    p_partner = np.take_along_axis(others, partner[..., None], axis=-1)[..., 0]
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
+        writer = csv.writer(handle, lineterminator="\n")
+        writer.writerow(columns)
+        for t in range(T):
+            frame = int(frames[t])
+            time = format_float(round(float(times[t]), 9))
+            for i in range(P):
+                if not present[t, i]:
+                    writer.writerow([frame, time, people[i], 0] + [""] * (len(columns) - 4))
+                    continue
+                k = int(best[t, i])
+                chance = _probability(max(float(p_partner[t, i]), 0.0) if P > 1 else 0.0)
+                writer.writerow([frame, time, people[i], 1, candidates[k], _probability(membership[t, i, k]),
+                                 *(_probability(p) for p in membership[t, i]),
+                                 people[int(partner[t, i])] if chance not in ("", "0.0") else "", chance or "0.0"])
+    return T * P
+
+
+def write_joint_netcdf(path, posterior) -> str:
+    """Write ``posterior.idata`` (an arviz ``InferenceData``) to ``path`` as netCDF, atomically; returns ``path``.
+
+    Read it back with ``arviz.from_netcdf(path)``.
+    """
+    idata = posterior.idata
+    with atomic_path(path) as tmp:
+        idata.to_netcdf(tmp)
+    return str(path)

@@ -1,0 +1,218 @@
+"""The observed recording of the joint model, checked at the door (Siegfried et al. 2017, Sec. 2; Park et al. 2012, Sec. 3.1).
+
+Frames and units (``docs/conventions.md``): positions in the **world** frame
+(metres), ``R_world_from_head`` maps head-frame vectors to the world frame, and
+gaze angles ``g = (yaw, tilt)`` are in the **head** frame (+x forward, +y left,
++z up), radians. Arrays are frame-major: ``(T, P, …)`` for ``T`` frames and ``P``
+people.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, NamedTuple, Sequence
+
+import numpy as np
+from jaxtyping import Bool, Float, Int
+
+__all__ = ["JointData", "joint_data"]
+
+#: Largest plausible distance (m) of an eye from the scene centre: beyond it the positions are
+#: almost surely in millimetres or centimetres.
+MAX_SCENE_EXTENT_M = 50.0
+
+
+class JointData(NamedTuple):
+    """One group recording, as the joint model sees it (all numpy, checked by :func:`joint_data`).
+
+    Attributes:
+        eye_positions: ``(T, P, 3)`` eye midpoints, world frame, metres.
+        R_world_from_head: ``(T, P, 3, 3)`` head rotations.
+        gaze_angles: ``(T, P, 2)`` measured gaze ``(yaw, tilt)`` in the head frame, radians
+            (0 where a person is absent).
+        present: ``(T, P)`` who is tracked in each frame.
+        speaking: ``(T, P)`` 0/1 speaking status (all 0 when unknown).
+        measurement_scale: ``(T, P)`` per-frame measurement sd (radians; 0 when not given).
+        window: ``(T,)`` index of each frame's concurrence window.
+        people: ``P`` names.
+        fps: frames per second.
+        window_s: the concurrence window length (seconds).
+    """
+
+    eye_positions: Float[np.ndarray, "T P 3"]
+    R_world_from_head: Float[np.ndarray, "T P 3 3"]
+    gaze_angles: Float[np.ndarray, "T P 2"]
+    present: Bool[np.ndarray, "T P"]
+    speaking: Float[np.ndarray, "T P"]
+    measurement_scale: Float[np.ndarray, "T P"]
+    window: Int[np.ndarray, " T"]
+    people: tuple[str, ...]
+    fps: float
+    window_s: float
+
+    @property
+    def num_frames(self) -> int:
+        return self.eye_positions.shape[0]
+
+    @property
+    def num_people(self) -> int:
+        return self.eye_positions.shape[1]
+
+    @property
+    def num_windows(self) -> int:
+        return int(self.window.max()) + 1 if self.window.size else 0
+
+    @property
+    def has_speech(self) -> bool:
+        return bool(np.any(self.speaking > 0))
+
+    @property
+    def times(self) -> Float[np.ndarray, " T"]:
+        return np.arange(self.num_frames) / self.fps
+
+
+def _array(name: str, value, shape: tuple) -> np.ndarray:
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a numeric array, got {type(value).__name__}") from None
+    if a.shape != shape:
+        raise ValueError(f"{name} must have shape {shape} (frames, people, …) to match gaze_angles, got {a.shape}")
+    return a
+
+
+def _first_bad(name: str, bad: np.ndarray, people: Sequence[str]) -> None:
+    if bad.any():
+        t, p = (int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"{name} is not finite (NaN or inf) at frame {t}, person {people[p]!r}, where they are present")
+
+
+def _speaking(speaking, shape: tuple[int, int], people: tuple[str, ...]) -> np.ndarray:
+    if speaking is None:
+        return np.zeros(shape)
+    if isinstance(speaking, Mapping):
+        flags = np.zeros(shape)
+        for who, values in speaking.items():
+            if who not in people:
+                raise ValueError(f"speaking flags for an unknown person {who!r}; the people are {', '.join(people)}")
+            v = np.asarray(values)
+            if v.shape != (shape[0],):
+                raise ValueError(f"speaking flags of {who!r} must have shape ({shape[0]},) (one per frame), got {v.shape}")
+            flags[:, people.index(who)] = _flags(f"speaking[{who!r}]", v)
+        return flags
+    v = np.asarray(speaking)
+    if v.ndim == 2 and v.shape[0] == shape[0] and v.shape[1] != shape[1]:
+        raise ValueError(f"speaking has flags for {v.shape[1]} people, but there are {shape[1]} ({', '.join(people)}); "
+                         "pass a mapping name → flags to name them")
+    if v.shape != shape:
+        raise ValueError(f"speaking must have shape (T, P) = {shape}, got {v.shape}")
+    return _flags("speaking", v)
+
+
+def _flags(name: str, v: np.ndarray) -> np.ndarray:
+    if v.dtype != bool:
+        f = np.asarray(v, dtype=float)
+        if not np.all(np.isin(f, (0.0, 1.0))):
+            raise ValueError(f"{name} must be boolean (or 0/1)")
+        return f
+    return v.astype(float)
+
+
+def joint_data(
+    eye_positions,
+    R_world_from_head,
+    gaze_angles,
+    *,
+    present=None,
+    speaking=None,
+    measurement_scale=None,
+    people: Sequence[str] | None = None,
+    fps: float = 10.0,
+    window_s: float = 60.0,
+) -> JointData:
+    """Check a recording and pack it as :class:`JointData` (Siegfried et al. 2017, Sec. 2; Park et al. 2012, Sec. 3.1).
+
+    Args:
+        eye_positions: ``(T, P, 3)`` eye midpoints, world frame, metres.
+        R_world_from_head: ``(T, P, 3, 3)`` head rotations (``v_world = R v_head``).
+        gaze_angles: ``(T, P, 2)`` measured gaze ``(yaw, tilt)``, head frame, radians.
+        present: ``(T, P)`` bool; default: where the gaze angles are not NaN.
+        speaking: ``(T, P)`` 0/1 flags, or a mapping from person name to ``(T,)`` flags
+            (people left out never speak); ``None`` when speech is unknown.
+        measurement_scale: ``(T, P)`` per-frame measurement sd (radians, ≥ 0), e.g. a
+            tool's own uncertainty; ``None`` when not known.
+        people: ``P`` names (default ``"0"``, ``"1"``, …).
+        fps: frames per second; window_s: concurrence window length (seconds).
+
+    Raises:
+        ValueError: naming the array, frame and person for inconsistent shapes, NaN
+        where a person is present, a person never present, flags for an unknown
+        person, a rotation that is not one, or implausible units (degrees for
+        angles, millimetres for positions).
+    """
+    gaze = np.asarray(gaze_angles, dtype=float)
+    if gaze.ndim != 3 or gaze.shape[-1] != 2:
+        raise ValueError(f"gaze_angles must have shape (T, P, 2) (yaw, tilt per frame and person), got {gaze.shape}")
+    T, P = gaze.shape[:2]
+    if T < 1 or P < 2:
+        raise ValueError(f"the joint model needs at least 1 frame and 2 people, got T={T}, P={P}")
+    eyes = _array("eye_positions", eye_positions, (T, P, 3))
+    R = _array("R_world_from_head", R_world_from_head, (T, P, 3, 3))
+    people = tuple(str(p) for p in (range(P) if people is None else people))
+    if len(people) != P:
+        raise ValueError(f"people names {len(people)} for {P} people (gaze_angles has shape {gaze.shape})")
+    if len(set(people)) != P:
+        raise ValueError(f"people names must be unique, got {people}")
+    if present is None:
+        mask = ~np.isnan(gaze).any(axis=-1)
+    else:
+        mask = np.asarray(present)
+        if mask.shape != (T, P):
+            raise ValueError(f"present must have shape (T, P) = {(T, P)}, got {mask.shape}")
+        mask = _flags("present", mask).astype(bool)
+    never = np.flatnonzero(~mask.any(axis=0))
+    if never.size:
+        raise ValueError(f"person {people[never[0]]!r} is never present; drop them or mark the frames where they are")
+    _first_bad("gaze_angles", ~np.isfinite(gaze).all(-1) & mask, people)
+    _first_bad("eye_positions", ~np.isfinite(eyes).all(-1) & mask, people)
+    _first_bad("R_world_from_head", ~np.isfinite(R).all((-2, -1)) & mask, people)
+    if not fps > 0 or not np.isfinite(fps):
+        raise ValueError(f"fps must be positive, got {fps!r}")
+    if not window_s > 0:
+        raise ValueError(f"window_s must be positive, got {window_s!r}")
+
+    m = mask
+    if np.abs(gaze[m]).max() > np.pi + 1e-6:
+        raise ValueError(f"gaze_angles reach {np.abs(gaze[m]).max():.3g}, beyond π: they must be radians (degrees?)")
+    centre = np.median(eyes[m], axis=0)
+    extent = np.linalg.norm(eyes[m] - centre, axis=-1).max()
+    if extent > MAX_SCENE_EXTENT_M:
+        raise ValueError(f"eye_positions spread {extent:.3g} m from the scene centre, beyond {MAX_SCENE_EXTENT_M:g} m: "
+                         "they must be metres (millimetres?)")
+    gram = np.einsum("...ji,...jk->...ik", R, R) - np.eye(3)
+    error = np.where(m, np.abs(gram).max(axis=(-2, -1)), 0.0)
+    det = np.where(m, np.linalg.det(np.where(m[..., None, None], R, np.eye(3))), 1.0)
+    bad = (error > 1e-3) | (det < 0)
+    if bad.any():
+        t, p = (int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"R_world_from_head at frame {t}, person {people[p]!r} is not a rotation "
+                         f"(RᵀR − I up to {error[t, p]:.2g}, det {det[t, p]:.3g})")
+
+    speak = _speaking(speaking, (T, P), people)
+    if measurement_scale is None:
+        scale = np.zeros((T, P))
+    else:
+        scale = _array("measurement_scale", measurement_scale, (T, P))
+        bad = (~np.isfinite(scale) | (scale < 0)) & mask
+        if bad.any():
+            t, p = (int(i) for i in np.argwhere(bad)[0])
+            raise ValueError(f"measurement_scale must be finite and ≥ 0; frame {t}, person {people[p]!r} has {scale[t, p]}")
+        if scale[mask].max() > 1.0:
+            raise ValueError(f"measurement_scale reaches {scale[mask].max():.3g} rad: it must be radians (degrees?)")
+    scale = np.where(mask, scale, 0.0)
+    # Absent entries get harmless placeholders; the mask keeps them out of the likelihood.
+    gaze = np.where(mask[..., None], gaze, 0.0)
+    eyes = np.where(mask[..., None], eyes, np.where(np.isfinite(eyes), eyes, 0.0))
+    R = np.where(mask[..., None, None], R, np.eye(3))
+    window = (np.arange(T) / fps // window_s).astype(np.int64)
+    return JointData(eyes, R, gaze, mask, np.where(mask, speak, 0.0), scale, window, people, float(fps),
+                     float(window_s))

@@ -1,0 +1,432 @@
+"""Inference for the joint model: NUTS on a window, SVI with frame subsampling for long recordings (Park et al. 2012, eq. 3; Siegfried et al. 2017, eq. 1).
+
+:func:`fit_joint` starts from the pipeline (:func:`~jaxgaze.joint.joint_start`),
+draws from the posterior and returns a :class:`JointPosterior`: the arviz
+``InferenceData``, the membership probabilities of every frame, who looks at whom,
+mutual gaze, the concurrences, the diagnostics and a posterior predictive check.
+A run whose diagnostics fail carries ``RESULTS.not_mixed`` (``throw=False``) or
+raises :class:`~jaxgaze.results.FitError` (``throw=True``).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import numpyro
+from jax.scipy.special import logsumexp
+
+from jaxgaze.bias import gaze_angles_to_direction, head_to_world
+from jaxgaze.cone import sample_gaze_directions
+from jaxgaze.geometry import angle_between
+from jaxgaze.joint.data import JointData
+from jaxgaze.joint.init import JointStart, directions_to_people, joint_start
+from jaxgaze.joint.model import (JointPrior, ModelArrays, candidate_log_probabilities, concurrence_locations,
+                                 joint_model)
+from jaxgaze.nuts import quiet_single_chain, sample_nuts
+from jaxgaze.rays import GazeRays
+from jaxgaze.results import RESULTS, name, throw_if_failed
+
+__all__ = ["JointPosterior", "fit_joint", "MAX_RHAT", "MIN_ESS", "MAX_DIVERGENT_SHARE", "METHODS"]
+
+#: Diagnostics a run must pass: split r-hat at most this (a single chain is split in halves) …
+MAX_RHAT = 1.05
+#: … bulk and tail ESS at least this …
+MIN_ESS = 100
+#: … and at most this share of divergent transitions.
+MAX_DIVERGENT_SHARE = 0.01
+#: Inference methods of :func:`fit_joint`.
+METHODS = ("nuts", "svi")
+_SUMMARY_SITES = ("bias", "cone_width", "alpha_person", "alpha_object", "speaker_effect",
+                  "concurrence_locations")
+#: Draws used for the membership probabilities and the predictive check.
+_MAX_PROBABILITY_DRAWS = 200
+
+
+@functools.lru_cache(maxsize=None)
+def _model(prior: JointPrior, frames_per_step: int | None):
+    return functools.partial(joint_model, prior=prior, frames_per_step=frames_per_step)
+
+
+def _arrays(data: JointData, centres, dtype) -> ModelArrays:
+    f = lambda a: jnp.asarray(a, dtype)  # noqa: E731
+    return ModelArrays(f(data.eye_positions), f(data.R_world_from_head), f(data.gaze_angles),
+                       jnp.asarray(data.present), f(data.speaking), f(data.measurement_scale),
+                       jnp.asarray(data.window, jnp.int32), f(directions_to_people(data)), f(centres))
+
+
+def _start_values(start: JointStart, prior: JointPrior, num_people: int) -> dict:
+    """Constrained starting values of every latent site."""
+    K = start.num_concurrences
+    W = start.concurrence_centres.shape[0]
+    values = {"bias": np.asarray(start.bias, float), "cone_width": np.full(num_people, prior.cone_width_median),
+              "alpha_person": np.zeros(()), "speaker_effect": np.asarray(prior.speaker_log_ratio)}
+    if K:
+        values["alpha_object"] = np.zeros(())
+        values["concurrence_offset"] = np.zeros((K, 3))
+        if W > 1:
+            values["concurrence_drift"] = np.zeros((W, K, 3))
+    return values
+
+
+def _unconstrained(values: dict) -> dict:
+    return {k: (np.log(v) if k in ("cone_width",) else v) for k, v in values.items()}
+
+
+def _params(draw: dict, centres, prior: JointPrior) -> dict:
+    """The model's parameters for one draw (locations from the latent offsets)."""
+    p = {k: draw[k] for k in ("bias", "cone_width", "alpha_person", "speaker_effect")}
+    if centres.shape[1]:
+        p["alpha_object"] = draw["alpha_object"]
+        p["locations"] = concurrence_locations(draw, centres, prior)
+    else:
+        p["alpha_object"] = jnp.zeros((), centres.dtype)
+        p["locations"] = centres
+    return p
+
+
+@functools.partial(jax.jit, static_argnames=("prior",))
+def _probabilities(draws: dict, arrays: ModelArrays, prior: JointPrior):
+    """Mean membership ``P(z_ti = j)`` and mutual ``E[p_ij p_ji]`` over the draws (one draw at a time)."""
+    T, P = arrays.present.shape
+
+    def one(carry, draw):
+        lp = candidate_log_probabilities(_params(draw, arrays.location_centres, prior), arrays)
+        p = jnp.exp(lp - logsumexp(lp, axis=-1, keepdims=True))
+        people = p[..., :P]
+        return (carry[0] + p, carry[1] + people * jnp.swapaxes(people, 1, 2)), None
+
+    C = P + arrays.location_centres.shape[1] + 1
+    zero = (jnp.zeros((T, P, C), arrays.gaze_angles.dtype), jnp.zeros((T, P, P), arrays.gaze_angles.dtype))
+    (total, mutual), _ = jax.lax.scan(one, zero, draws)
+    n = jax.tree_util.tree_leaves(draws)[0].shape[0]
+    mask = arrays.present[..., None]
+    return jnp.where(mask, total / n, 0.0), jnp.where(mask, mutual / n, 0.0)
+
+
+@functools.partial(jax.jit, static_argnames=("prior",))
+def _predictive(key, draws: dict, arrays: ModelArrays, prior: JointPrior):
+    """Posterior predictive angular residuals, per person: observed and replicated mean ``angle / width``.
+
+    For each draw a target is drawn for every gaze from its posterior membership;
+    the observed residual is the angle between the corrected gaze and the direction
+    to that target, the replicated one the angle of a direction drawn from the cone
+    around it. Glances elsewhere have no direction to compare and are left out.
+    """
+    T, P = arrays.present.shape
+
+    def one(key, draw):
+        params = _params(draw, arrays.location_centres, prior)
+        lp = candidate_log_probabilities(params, arrays)
+        k1, k2 = jax.random.split(key)
+        z = jax.random.categorical(k1, lp, axis=-1)  # (T, P)
+        eyes = arrays.eye_positions
+        targets = jnp.concatenate([jnp.broadcast_to(eyes[:, None], (T, P, P, 3)),
+                                   jnp.broadcast_to(params["locations"][arrays.window][:, None],
+                                                    (T, P) + params["locations"].shape[1:])], axis=2)
+        chosen = jnp.take_along_axis(targets, jnp.minimum(z, targets.shape[2] - 1)[..., None, None], axis=2)[:, :, 0]
+        u = chosen - eyes
+        u = u / jnp.linalg.norm(u, axis=-1, keepdims=True).clip(1e-9)
+        d = head_to_world(gaze_angles_to_direction(arrays.gaze_angles + params["bias"]), arrays.R_world_from_head)
+        width = jnp.sqrt(jnp.square(params["cone_width"])[None] + jnp.square(arrays.measurement_scale))
+        replicated = sample_gaze_directions(k2, GazeRays(eyes.reshape(-1, 3), u.reshape(-1, 3), width.reshape(-1)))
+        use = arrays.present & (z < targets.shape[2])
+        observed = angle_between(d, u) / width
+        rep = angle_between(replicated.reshape(T, P, 3), u) / width
+        count = jnp.maximum(jnp.sum(use, axis=0), 1)
+        return (jnp.sum(jnp.where(use, observed, 0.0), axis=0) / count,
+                jnp.sum(jnp.where(use, rep, 0.0), axis=0) / count)
+
+    n = jax.tree_util.tree_leaves(draws)[0].shape[0]
+    keys = jax.random.split(key, n)
+    return jax.lax.map(lambda a: one(*a), (keys, draws))
+
+
+class JointPosterior(NamedTuple):
+    """The joint posterior of a recording (Park et al. 2012, eq. 3; Siegfried et al. 2017, eq. 1).
+
+    Candidate order in ``membership``: people ``0 … P−1``, concurrences ``P … P+K−1``,
+    elsewhere ``P+K``.
+
+    Attributes:
+        idata: ``arviz.InferenceData`` (posterior, sample_stats, observed_data).
+        result: a :class:`~jaxgaze.results.RESULTS` item (``not_mixed`` when the
+            diagnostics fail; ``max_steps_reached`` for an SVI run still improving).
+        diagnostics: ``max_rhat``, ``min_ess_bulk``, ``min_ess_tail``, ``divergences``,
+            ``draws`` and, for SVI, ``elbo_change``.
+        method: ``"nuts"`` or ``"svi"``.
+        people: names; fps: frames per second.
+        membership: ``(T, P, C)`` posterior ``P(z_ti = j)`` (0 where absent).
+        mutual: ``(T, P, P)`` ``P(i looks at j and j looks at i)``.
+        samples: posterior draws (``bias (S, P, 2)``, ``cone_width (S, P)``,
+            ``concurrence_locations (S, W, K, 3)``, …).
+        window: ``(T,)`` window of each frame.
+        start: the pipeline's answer the fit started from (a :class:`JointStart`).
+        predictive_check: per person, the observed mean ``angle / width`` of the
+            gaze to its target and its replicated draws (``observed (P,)``,
+            ``replicated (S, P)``, ``p_value (P,)``).
+    """
+
+    idata: object
+    result: RESULTS
+    diagnostics: dict
+    method: str
+    people: tuple[str, ...]
+    fps: float
+    membership: np.ndarray
+    mutual: np.ndarray
+    samples: dict
+    window: np.ndarray
+    start: JointStart
+    predictive_check: dict
+
+    @property
+    def num_people(self) -> int:
+        return len(self.people)
+
+    @property
+    def num_concurrences(self) -> int:
+        return self.membership.shape[-1] - self.num_people - 1
+
+    @property
+    def succeeded(self) -> bool:
+        return name(self.result) == "successful"
+
+    @property
+    def candidates(self) -> tuple[str, ...]:
+        """Names of the candidate targets, in membership order."""
+        return self.people + tuple(f"concurrence {k}" for k in range(self.num_concurrences)) + ("elsewhere",)
+
+    @property
+    def bias(self) -> np.ndarray:
+        """``(P, 2)`` posterior mean bias (yaw, tilt), radians."""
+        return self.samples["bias"].mean(axis=0)
+
+    @property
+    def cone_width(self) -> np.ndarray:
+        """``(P,)`` posterior mean cone width, radians."""
+        return self.samples["cone_width"].mean(axis=0)
+
+    @property
+    def looks_at(self) -> np.ndarray:
+        """``(T, P, P)``: ``P(i looks at j)`` for every ordered pair (0 on the diagonal)."""
+        return self.membership[..., : self.num_people]
+
+    def map_targets(self) -> np.ndarray:
+        """``(T, P)`` most probable target: a person ``j``, ``P + k`` for concurrence ``k``, −1 elsewhere or absent."""
+        best = np.argmax(self.membership, axis=-1)
+        absent = self.membership.sum(-1) == 0
+        return np.where((best == self.membership.shape[-1] - 1) | absent, -1, best)
+
+    def interval(self, site: str, level: float = 0.9) -> np.ndarray:
+        """Equal-tailed ``level`` interval of a site: ``(..., 2)`` (lower, upper)."""
+        if not 0 < level < 1:
+            raise ValueError(f"level must lie in (0, 1), got {level!r}")
+        draws = self.samples[site]
+        return np.stack([np.quantile(draws, (1 - level) / 2, axis=0), np.quantile(draws, (1 + level) / 2, axis=0)],
+                        axis=-1)
+
+    def concurrence_locations(self, level: float = 0.9) -> dict:
+        """Per frame, each free concurrence's posterior: ``mean (T, K, 3)``, ``covariance (T, K, 3, 3)``,
+        ``hdi (T, K, 3, 2)`` (arviz HDI at ``level``), ``members (T, K)`` (expected number of gazers)
+        and ``membership (T, P, K)``."""
+        import arviz as az
+
+        draws = self.samples.get("concurrence_locations")
+        T, P = self.membership.shape[:2]
+        K = self.num_concurrences
+        if draws is None or K == 0:
+            empty = np.zeros((T, 0, 3))
+            return {"mean": empty, "covariance": np.zeros((T, 0, 3, 3)), "hdi": np.zeros((T, 0, 3, 2)),
+                    "members": np.zeros((T, 0)), "membership": np.zeros((T, P, 0))}
+        mean = draws.mean(axis=0)
+        centred = draws - mean
+        cov = np.einsum("swki,swkj->wkij", centred, centred) / max(draws.shape[0] - 1, 1)
+        hdi = np.asarray(az.hdi(draws[None], hdi_prob=level))  # (W, K, 3, 2)
+        membership = self.membership[..., P: P + K]
+        return {"mean": mean[self.window], "covariance": cov[self.window], "hdi": hdi[self.window],
+                "members": membership.sum(axis=1), "membership": membership}
+
+    def concurrence_counts(self, min_members: int = 2) -> np.ndarray:
+        """``(T,)`` gaze concurrences per frame: targets (people or free points) that at least
+        ``min_members`` people look at (by their most probable target) — Park's concurrences."""
+        targets = self.map_targets()
+        C = self.num_people + self.num_concurrences
+        counts = np.stack([(targets == c).sum(axis=1) for c in range(C)], axis=1)
+        return (counts >= min_members).sum(axis=1)
+
+
+def _split_chains(posterior):
+    """A single chain split into halves, for split r-hat (arviz needs two chains)."""
+    import xarray as xr
+
+    n = posterior.sizes["draw"] // 2
+    first = posterior.isel(chain=[0], draw=slice(0, n))
+    second = posterior.isel(chain=[0], draw=slice(n, 2 * n)).assign_coords(draw=first.draw, chain=[1])
+    return xr.concat([first, second], dim="chain")
+
+
+def _diagnostics(idata, diverging: np.ndarray) -> dict:
+    import arviz as az
+
+    posterior = idata.posterior[[s for s in _SUMMARY_SITES if s in idata.posterior]]
+    with quiet_single_chain(posterior.sizes["chain"]):
+        split = _split_chains(posterior) if posterior.sizes["chain"] == 1 else posterior
+        rhat = az.rhat(split)
+        bulk = az.ess(posterior, method="bulk")
+        tail = az.ess(posterior, method="tail")
+    worst = lambda ds, f: float(f([float(f(ds[v].values)) for v in ds.data_vars]))  # noqa: E731
+    return {"max_rhat": worst(rhat, np.nanmax), "min_ess_bulk": worst(bulk, np.nanmin),
+            "min_ess_tail": worst(tail, np.nanmin), "divergences": int(np.sum(diverging)),
+            "draws": int(diverging.size)}
+
+
+def _verdict(diagnostics: dict) -> RESULTS:
+    if not all(math.isfinite(diagnostics[k]) for k in ("max_rhat", "min_ess_bulk", "min_ess_tail")):
+        return RESULTS.nonfinite
+    mixed = (diagnostics["max_rhat"] <= MAX_RHAT and diagnostics["min_ess_bulk"] >= MIN_ESS
+             and diagnostics["min_ess_tail"] >= MIN_ESS
+             and diagnostics["divergences"] <= MAX_DIVERGENT_SHARE * diagnostics["draws"])
+    return RESULTS.successful if mixed else RESULTS.not_mixed
+
+
+def _inference_data(samples: dict, stats: dict | None, data: JointData, K: int):
+    import arviz as az
+
+    W = data.num_windows
+    coords = {"person": list(data.people), "angle": ["yaw", "tilt"], "concurrence": list(range(K)),
+              "window": list(range(W)), "axis": ["x", "y", "z"], "frame": list(range(data.num_frames))}
+    dims = {"bias": ["person", "angle"], "cone_width": ["person"], "concurrence_offset": ["concurrence", "axis"],
+            "concurrence_drift": ["window", "concurrence", "axis"],
+            "concurrence_locations": ["window", "concurrence", "axis"],
+            "gaze_angles": ["frame", "person", "angle"], "present": ["frame", "person"],
+            "speaking": ["frame", "person"]}
+    observed = {"gaze_angles": data.gaze_angles, "present": data.present.astype(np.int8),
+                "speaking": data.speaking}
+    return az.from_dict(posterior=samples, sample_stats=stats, observed_data=observed, coords=coords, dims=dims)
+
+
+def fit_joint(
+    data: JointData,
+    key,
+    *,
+    method: str = "nuts",
+    num_warmup: int = 500,
+    num_samples: int = 500,
+    num_chains: int = 1,
+    num_steps: int = 3000,
+    frames_per_step: int = 256,
+    learning_rate: float = 0.02,
+    prior: JointPrior = JointPrior(),
+    start: JointStart | None = None,
+    progress: bool = False,
+    throw: bool = False,
+) -> JointPosterior:
+    """Infer biases, cone widths, who looks at whom and the concurrences of a recording together (Park et al. 2012, eq. 3; Siegfried et al. 2017, eq. 1).
+
+    Args:
+        data: the recording, from :func:`~jaxgaze.joint.joint_data`.
+        key: a ``jax.random`` key (the start's frame draw, the sampler, the checks).
+        method: ``"nuts"`` (exact; a window of a minute or two) or ``"svi"`` (a
+            mean-field normal posterior, frames subsampled ``frames_per_step`` at a
+            time for ``num_steps`` Adam steps at ``learning_rate``; long recordings).
+        num_warmup, num_samples, num_chains: NUTS settings (``num_samples`` draws are
+            also taken from the SVI posterior).
+        prior: a :class:`JointPrior`.
+        start: the pipeline's answer to start from (default :func:`joint_start`).
+        progress: progress bars on stderr.
+        throw: raise :class:`~jaxgaze.results.FitError` instead of returning a
+            failed ``result``.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    if not isinstance(data, JointData):
+        raise TypeError(f"data must be a JointData (see jaxgaze.joint.joint_data), got {type(data).__name__}")
+    for label, value, least in (("num_warmup", num_warmup, 1), ("num_samples", num_samples, 4),
+                                ("num_chains", num_chains, 1), ("num_steps", num_steps, 10),
+                                ("frames_per_step", frames_per_step, 1)):
+        if int(value) != value or value < least:
+            raise ValueError(f"{label} must be an integer ≥ {least}, got {value!r}")
+    k_start, k_fit, k_draws, k_check = jax.random.split(key, 4)
+    start = joint_start(data, k_start, progress=progress) if start is None else start
+    if start.concurrence_centres.shape[0] != data.num_windows:
+        raise ValueError(f"start has {start.concurrence_centres.shape[0]} windows, the data {data.num_windows}")
+    dtype = jnp.result_type(float)
+    arrays = _arrays(data, start.concurrence_centres, dtype)
+    values = _start_values(start, prior, data.num_people)
+    K = start.num_concurrences
+
+    if method == "nuts":
+        model = _model(prior, None)
+        batched = lambda a: jnp.broadcast_to(jnp.asarray(a), (num_chains,) + jnp.shape(a))  # noqa: E731
+        init = {k: batched(jnp.asarray(v, dtype)) for k, v in _unconstrained(values).items()}
+        draws, stats = sample_nuts(model, k_fit, tuple(batched(a) for a in arrays), init,
+                                   num_warmup=int(num_warmup), num_samples=int(num_samples),
+                                   dense_mass=True, progress_bar=progress, description="joint NUTS")
+        draws = {k: np.asarray(v) for k, v in draws.items()}
+        stats = {k: np.asarray(v) for k, v in stats.items()}
+        extra = {}
+    else:
+        draws, stats, extra = _svi(data, arrays, values, prior, k_fit, k_draws, int(num_steps), int(frames_per_step),
+                                   float(learning_rate), int(num_samples), progress)
+
+    idata = _inference_data({k: v for k, v in draws.items()}, stats, data, K)
+    if method == "nuts":
+        diagnostics = _diagnostics(idata, stats["diverging"])
+        result = _verdict(diagnostics)
+    else:
+        diagnostics = {"draws": int(num_samples), **extra}
+        result = extra.pop("result")
+        diagnostics.pop("result", None)
+    flat = {k: v.reshape((-1,) + v.shape[2:]) for k, v in draws.items()}
+    if not all(np.all(np.isfinite(v)) for v in flat.values()):
+        result = RESULTS.nonfinite
+    pick = np.linspace(0, flat["bias"].shape[0] - 1, min(_MAX_PROBABILITY_DRAWS, flat["bias"].shape[0])).astype(int)
+    latent = {k: jnp.asarray(v[pick], dtype) for k, v in flat.items() if k != "concurrence_locations"}
+    membership, mutual = (np.asarray(a) for a in _probabilities(latent, arrays, prior))
+    observed, replicated = (np.asarray(a) for a in _predictive(k_check, latent, arrays, prior))
+    check = {"observed": observed.mean(axis=0), "replicated": replicated,
+             "p_value": (replicated >= observed).mean(axis=0)}
+    posterior = JointPosterior(idata, result, diagnostics, method, data.people, data.fps, membership, mutual, flat,
+                               data.window, start, check)
+    if throw:
+        throw_if_failed(None, result, "fit_joint")
+    return posterior
+
+
+def _svi(data, arrays, values, prior, key, key_draws, num_steps, frames_per_step, learning_rate, num_samples,
+         progress):
+    from numpyro.infer import SVI, Trace_ELBO
+    from numpyro.infer.autoguide import AutoNormal
+    from numpyro.infer.initialization import init_to_value
+
+    batch = min(frames_per_step, data.num_frames)
+    model = _model(prior, batch if batch < data.num_frames else None)
+    guide = AutoNormal(model, init_loc_fn=init_to_value(values={k: jnp.asarray(v) for k, v in values.items()}),
+                       init_scale=0.01)
+    svi = SVI(model, guide, numpyro.optim.Adam(learning_rate), Trace_ELBO())
+    run = svi.run(key, num_steps, *arrays, progress_bar=progress)
+    losses = np.asarray(run.losses)
+    tail = max(10, num_steps // 10)
+    last, before = losses[-tail:], losses[-2 * tail: -tail]
+    change = float(np.mean(last) - np.mean(before))
+    noise = float(np.std(last) / math.sqrt(tail) + np.std(before) / math.sqrt(tail))
+    if not np.all(np.isfinite(losses[-tail:])):
+        result = RESULTS.nonfinite
+    elif change < -3.0 * noise:
+        result = RESULTS.max_steps_reached
+    else:
+        result = RESULTS.successful
+    latent = guide.sample_posterior(key_draws, run.params, sample_shape=(num_samples,))
+    latent = {k: np.asarray(v)[None] for k, v in latent.items() if k in values}
+    if "concurrence_offset" in latent:
+        centres = arrays.location_centres
+        latent["concurrence_locations"] = np.asarray(
+            jax.vmap(lambda d: concurrence_locations(d, centres, prior))(
+                {k: jnp.asarray(v[0]) for k, v in latent.items()}))[None]
+    return latent, None, {"result": result, "elbo_change": change, "elbo_noise": noise, "final_loss": float(last.mean())}
+

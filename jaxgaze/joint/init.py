@@ -1,0 +1,211 @@
+"""Starting points of the joint model: the two-step pipeline it improves on (Siegfried et al. 2017, eq. 2; Park et al. 2012, Sec. 3.3).
+
+1. Each person's bias from the Spk rule generalised to a group: frames where exactly
+   one other person speaks and the head is within 30° of them, ``N`` of them drawn
+   at random from the first minute, then LMedS (eq. 2) on the offsets to the speaker.
+2. The concurrences of the bias-corrected rays, frame by frame (mean-shift, eq. 5–6,
+   with exclusive support), minus the modes at a person's head (those are people,
+   which the model knows).
+3. The remaining modes of all frames, clustered in space: each cluster seen in
+   enough frames becomes one free concurrence, its centre per window the median of
+   its modes there.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Float, Int
+
+from jaxgaze.bias import (candidate_frames, gaze_angles_to_direction, gaze_offsets, head_target_angle, head_to_world,
+                          lmeds_bias, target_direction_head)
+from jaxgaze.concurrence import ConcurrenceOptions, find_concurrences_over_frames
+from jaxgaze.joint.data import JointData
+from jaxgaze.rays import GazeRays
+
+__all__ = ["JointStart", "directions_to_people", "speaker_rule_bias", "corrected_rays", "initial_concurrences", "joint_start",
+           "DEFAULT_CONCURRENCE_OPTIONS"]
+
+#: The mean-shift options of the start: modes above the floor and below 3 m, and a
+#: bandwidth-scaled search (Park et al. 2012, Sec. 3.3).
+DEFAULT_CONCURRENCE_OPTIONS = ConcurrenceOptions(bounds=((-np.inf, -np.inf, 0.0), (np.inf, np.inf, 3.0)))
+
+
+class JointStart(NamedTuple):
+    """Where the joint fit starts, and the pipeline's own answer.
+
+    Attributes:
+        bias: ``(P, 2)`` Spk-LMedS biases (0 for a person with too few frames).
+        bias_frames: ``(P,)`` frames each bias used.
+        concurrence_centres: ``(W, K, 3)`` initial free concurrences per window.
+        concurrence_support: ``(K,)`` frames in which each was found.
+    """
+
+    bias: Float[np.ndarray, "P 2"]
+    bias_frames: Int[np.ndarray, " P"]
+    concurrence_centres: Float[np.ndarray, "W K 3"]
+    concurrence_support: Int[np.ndarray, " K"]
+
+    @property
+    def num_concurrences(self) -> int:
+        return self.concurrence_centres.shape[1]
+
+
+def directions_to_people(data: JointData) -> np.ndarray:
+    """``(T, P, P, 3)``: the head-frame unit direction from person ``i`` (axis 1) to person ``j`` (axis 2)."""
+    eyes = jnp.asarray(data.eye_positions)
+    R = jnp.asarray(data.R_world_from_head)
+    T, P = data.present.shape
+    return np.asarray(target_direction_head(jnp.broadcast_to(eyes[:, :, None], (T, P, P, 3)),
+                                            jnp.broadcast_to(eyes[:, None, :], (T, P, P, 3)),
+                                            jnp.broadcast_to(R[:, :, None], (T, P, P, 3, 3))))
+
+
+def speaker_rule_bias(
+    data: JointData,
+    key,
+    *,
+    num_frames: int = 40,
+    window_s: float = 60.0,
+    max_head_angle_deg: float = 30.0,
+    min_frames: int = 5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-person Spk-LMedS bias in a group (Siegfried et al. 2017, Sec. 3.2 and eq. 2).
+
+    A frame is a candidate for person ``i`` when exactly one other present person
+    speaks, ``i``'s head is within ``max_head_angle_deg`` of them and the frame lies
+    in the first ``window_s`` seconds; ``num_frames`` candidates are drawn with
+    ``key`` and the bias is the LMedS estimate of their offsets to the speaker.
+    Fewer than ``min_frames`` candidates give a zero bias. Returns ``(bias (P, 2),
+    frames used (P,))``.
+    """
+    T, P = data.present.shape
+    speaking = (data.speaking > 0) & data.present
+    u = directions_to_people(data)  # (T, i, j, 3)
+    others_speaking = speaking[:, None, :] & ~np.eye(P, dtype=bool)[None]  # (T, i, j)
+    single = others_speaking.sum(-1) == 1
+    speaker = np.argmax(others_speaking, axis=-1)  # (T, i)
+    to_speaker = np.take_along_axis(u, speaker[..., None, None], axis=2)[:, :, 0]  # (T, P, 3)
+    angle = np.asarray(head_target_angle(jnp.asarray(to_speaker)))
+    bias = np.zeros((P, 2))
+    used = np.zeros(P, np.int64)
+    keys = jax.random.split(key, P)
+    for i in range(P):
+        ok = single[:, i] & data.present[:, i]
+        mask = np.asarray(candidate_frames(jnp.asarray(ok), jnp.asarray(angle[:, i]), fps=data.fps,
+                                           max_head_angle_deg=max_head_angle_deg, window_s=window_s))
+        frames = np.flatnonzero(mask)
+        if frames.size < min_frames:
+            continue
+        pick = np.sort(frames[np.asarray(jax.random.choice(keys[i], frames.size, (min(num_frames, frames.size),),
+                                                           replace=False))])
+        o = gaze_offsets(jnp.asarray(data.gaze_angles[pick, i]), jnp.asarray(to_speaker[pick, i]))
+        bias[i] = np.asarray(lmeds_bias(o)[0])
+        used[i] = pick.size
+    return bias, used
+
+
+def corrected_rays(data: JointData, bias, cone_width) -> GazeRays:
+    """``(T, P)`` world-frame rays ``(p_ti, R_ti Φ(g_ti + b_i))`` with bandwidth ``h_i``, masked by presence."""
+    d = head_to_world(gaze_angles_to_direction(jnp.asarray(data.gaze_angles) + jnp.asarray(bias)[None]),
+                      jnp.asarray(data.R_world_from_head))
+    h = jnp.broadcast_to(jnp.asarray(cone_width, d.dtype), data.present.shape)
+    return GazeRays(data.eye_positions, d, h, data.present)
+
+
+def initial_concurrences(
+    data: JointData,
+    rays: GazeRays,
+    *,
+    options: ConcurrenceOptions = DEFAULT_CONCURRENCE_OPTIONS,
+    stride: int = 1,
+    person_angle: float = 0.2,
+    cluster_angle: float = 0.1,
+    min_share: float = 0.03,
+    max_concurrences: int = 8,
+    progress: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Free concurrences from the mean-shift modes of every ``stride``-th frame (Park et al. 2012, Sec. 3.3).
+
+    A mode is a person, not a free concurrence, when at least half of its rays pass
+    within ``person_angle`` (radians) of another person's eyes; those modes are
+    dropped. The rest are clustered greedily: two modes are neighbours when, seen
+    from the eyes of either one's rays, they lie within ``cluster_angle`` (radians)
+    of each other (a far mode's error runs along the rays, so distance in metres
+    would split it); the mode with most neighbours takes them all, and so on. A cluster found in at least
+    ``min_share`` of the searched frames (and at least 2) is kept, up to
+    ``max_concurrences``. Returns ``(centres (W, K, 3), support (K,))``.
+    """
+    frames = np.arange(0, data.num_frames, stride)
+    found = find_concurrences_over_frames(rays[frames], options, progress=progress)
+    valid = np.asarray(found.valid)
+    locations = np.asarray(found.locations)
+    membership = np.asarray(found.membership)  # (F, P): each ray's mode, −1 for none
+    directions = np.asarray(rays.directions)[frames]
+    eyes = data.eye_positions[frames]
+    to_people = eyes[:, None, :, :] - eyes[:, :, None, :]
+    to_people /= np.maximum(np.linalg.norm(to_people, axis=-1, keepdims=True), 1e-9)
+    others = data.present[frames][:, None, :] & ~np.eye(data.num_people, dtype=bool)[None]
+    cosine = np.where(others, np.einsum("fik,fijk->fij", directions, to_people), -1.0)
+    at_person = cosine.max(axis=-1) > np.cos(person_angle)  # (F, P)
+
+    points, t_index, viewpoints = [], [], []
+    for f, k in zip(*np.nonzero(valid)):
+        members = membership[f] == k
+        if not members.any() or at_person[f, members].mean() >= 0.5:
+            continue
+        points.append(locations[f, k])
+        t_index.append(f)
+        viewpoints.append(eyes[f, members].mean(axis=0))
+    W = data.num_windows
+    centres, support = [], []
+    if points:
+        points, t_index, viewpoints = np.asarray(points), np.asarray(t_index), np.asarray(viewpoints)
+        a = points[None, :, :] - viewpoints[:, None, :]  # (viewpoint m, mode n)
+        a /= np.maximum(np.linalg.norm(a, axis=-1, keepdims=True), 1e-9)
+        own = np.einsum("mmk->mk", a)
+        angle = np.arccos(np.clip(np.einsum("mk,mnk->mn", own, a), -1.0, 1.0))
+        neighbours = np.minimum(angle, angle.T) < cluster_angle
+        free = np.ones(len(points), bool)
+        least = max(2, int(np.ceil(min_share * frames.size)))
+        for m in np.argsort(-neighbours.sum(axis=1), kind="stable"):
+            if not free[m] or len(centres) >= max_concurrences:
+                continue
+            members = np.flatnonzero(neighbours[m] & free)
+            free[members] = False
+            seen = np.unique(t_index[members])
+            if seen.size < least:
+                continue
+            centre = np.median(points[members], axis=0)
+            windows = data.window[frames[t_index[members]]]
+            per_window = np.stack([np.median(points[members][windows == w], axis=0) if np.any(windows == w)
+                                   else centre for w in range(W)])
+            centres.append(per_window)
+            support.append(seen.size * stride)
+    if not centres:
+        return np.zeros((W, 0, 3)), np.zeros(0, np.int64)
+    return np.stack(centres, axis=1), np.asarray(support, np.int64)
+
+
+def joint_start(
+    data: JointData,
+    key,
+    *,
+    cone_width: float = 0.07,
+    options: ConcurrenceOptions = DEFAULT_CONCURRENCE_OPTIONS,
+    stride: int | None = None,
+    progress: bool = False,
+) -> JointStart:
+    """The pipeline's answer as the joint fit's start: Spk-LMedS biases, then concurrences of the corrected rays.
+
+    ``stride`` thins the frames searched for concurrences (default: about 300 frames).
+    """
+    bias, used = speaker_rule_bias(data, key)
+    rays = corrected_rays(data, bias, cone_width)
+    stride = max(1, data.num_frames // 300) if stride is None else int(stride)
+    centres, support = initial_concurrences(data, rays, options=options, stride=stride, progress=progress)
+    return JointStart(bias, used, centres, support)
+

@@ -1,0 +1,205 @@
+"""The joint numpyro model of a group recording (Park et al. 2012, eq. 3; Siegfried et al. 2017, eq. 1 and Sec. 3.2).
+
+For person ``i`` at frame ``t`` the measured head-frame gaze ``g_ti``, corrected by
+the person's bias ``b_i``, gives the world direction ``d_ti = R_ti Φ(g_ti + b_i)``.
+The person looks at one target ``z_ti``, chosen among
+
+* the other people present (their eye midpoints, known),
+* ``K`` free concurrences, latent 3D points shared by several people, piecewise
+  constant over windows,
+* "elsewhere", uniform on the sphere.
+
+The prior on the target depends on who speaks: ``logit P(z = j) = α_person + β·s_tj``
+for a person ``j`` (``s`` = 1 while ``j`` speaks), ``α_object`` for a concurrence and
+0 for elsewhere, so a speaker is ``e^β`` times as likely a target as a silent
+person (the paper: 5–8 times). Given the target ``x``, ``d_ti`` scatters around
+``u = unit(x − p_ti)`` as Park's cone with width ``w_ti = √(h_i² + σ_ti²)``
+(``σ`` the optional per-frame measurement sd). ``z`` is summed out exactly:
+``log p(g) = Σ_ti log Σ_j P(z_ti = j) p(d_ti | j)``.
+
+Candidate order, everywhere: people ``0 … P−1``, concurrences ``P … P+K−1``,
+elsewhere ``P+K``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpyro
+import numpyro.distributions as dist
+from jax.scipy.special import logsumexp
+from jaxtyping import Array, Bool, Float, Int
+
+from jaxgaze.bias import gaze_angles_to_direction, head_to_world
+from jaxgaze.cone import cone_direction_log_density
+from jaxgaze.geometry import unit
+
+__all__ = ["ELSEWHERE_LOG_DENSITY", "JointPrior", "ModelArrays", "joint_model", "candidate_log_probabilities", "marginal_log_likelihood",
+           "concurrence_locations"]
+
+
+#: Log density (per steradian) of a glance "elsewhere": uniform on the sphere.
+ELSEWHERE_LOG_DENSITY = -math.log(4.0 * math.pi)
+
+
+class JointPrior(NamedTuple):
+    """Priors of the joint model (radians, metres). Hashable: it keys the compilation.
+
+    Attributes:
+        bias_scale: sd of each bias component (yaw, tilt); biases of 5–15° are common.
+        cone_width_median, cone_width_log_sd: log-normal prior of the cone width ``h``.
+        logit_scale: sd of ``α_person`` and ``α_object``.
+        speaker_log_ratio, speaker_log_ratio_sd: normal prior of ``β``; ``e^β`` is how much
+            more often a speaker is looked at than a silent person (Siegfried et al.
+            2017: 5–8 times, so the centre is log 6.3).
+        location_scale: sd (m) of a concurrence around its mean-shift initialisation.
+        window_drift: sd (m) of a concurrence's per-window move around its own centre.
+    """
+
+    bias_scale: float = 0.25
+    cone_width_median: float = 0.07
+    cone_width_log_sd: float = 0.6
+    logit_scale: float = 3.0
+    speaker_log_ratio: float = math.log(6.3)
+    speaker_log_ratio_sd: float = 0.15
+    location_scale: float = 0.5
+    window_drift: float = 0.1
+
+
+class ModelArrays(NamedTuple):
+    """The arrays the model reads, as JAX arrays (see :class:`~jaxgaze.joint.JointData`).
+
+    ``to_people_head[t, i, j]`` is the unit direction from person ``i``'s eyes to
+    person ``j``'s, in ``i``'s head frame (data: the people's positions are known).
+    """
+
+    eye_positions: Float[Array, "T P 3"]
+    R_world_from_head: Float[Array, "T P 3 3"]
+    gaze_angles: Float[Array, "T P 2"]
+    present: Bool[Array, "T P"]
+    speaking: Float[Array, "T P"]
+    measurement_scale: Float[Array, "T P"]
+    window: Int[Array, " T"]
+    to_people_head: Float[Array, "T P P 3"]
+    location_centres: Float[Array, "W K 3"]
+
+
+def concurrence_locations(latent: dict, centres: Float[Array, "W K 3"], prior: JointPrior) -> Float[Array, "W K 3"]:
+    """Concurrence ``k`` in window ``w``: ``c_wk + s·a_k + δ·e_wk`` (non-centred; ``a, e ~ N(0, I)``)."""
+    locations = centres + prior.location_scale * latent["concurrence_offset"][None]
+    if "concurrence_drift" in latent:
+        locations = locations + prior.window_drift * latent["concurrence_drift"]
+    return locations
+
+
+def _parts(params: dict, arrays: ModelArrays):
+    """Per candidate group (people, concurrences): the prior logits, the log likelihoods and the validity masks."""
+    eyes, R, gaze, present, speaking, scale, window, to_people_head, _ = arrays
+    T, P = present.shape
+    directions_head = gaze_angles_to_direction(gaze + params["bias"])  # (T, P, 3)
+    width = jnp.sqrt(jnp.square(params["cone_width"])[None] + jnp.square(scale))[..., None]  # (T, P, 1)
+    people_lik = cone_direction_log_density(jnp.einsum("tik,tijk->tij", directions_head, to_people_head), width)
+    others = present[:, None, :] & ~jnp.eye(P, dtype=bool)[None]
+    people_logit = jnp.where(others, params["alpha_person"] + params["speaker_effect"] * speaking[:, None, :], -jnp.inf)
+    locations = params["locations"]
+    if locations.shape[1]:
+        directions = head_to_world(directions_head, R)  # (T, P, 3), world frame
+        to_slots = unit(locations[window][:, None] - eyes[:, :, None])  # (T, P, K, 3)
+        slot_lik = cone_direction_log_density(jnp.einsum("tik,tijk->tij", directions, to_slots), width)
+    else:
+        slot_lik = jnp.zeros((T, P, 0), directions_head.dtype)
+    elsewhere = jnp.full((T, P), ELSEWHERE_LOG_DENSITY, directions_head.dtype)
+    return people_logit, people_lik, others, slot_lik, elsewhere
+
+
+def _log_normaliser(people_logit, num_slots: int, alpha_object):
+    """``log Σ_j exp(logit_j)`` over every candidate: people, ``K`` concurrences, elsewhere (logit 0)."""
+    terms = [logsumexp(people_logit, axis=-1), jnp.zeros(people_logit.shape[:2], people_logit.dtype)]
+    if num_slots:
+        terms.append(jnp.broadcast_to(alpha_object + math.log(num_slots), people_logit.shape[:2]))
+    return logsumexp(jnp.stack(terms), axis=0)
+
+
+def candidate_log_probabilities(params: dict, arrays: ModelArrays) -> Float[Array, "T P C"]:
+    """``log P(z_ti = j) + log p(g_ti | z_ti = j)`` for every candidate ``j`` (Park et al. 2012, eq. 3; Siegfried et al. 2017, Sec. 3.2).
+
+    ``params`` holds ``bias (P, 2)``, ``cone_width (P,)``, ``alpha_person``,
+    ``alpha_object``, ``speaker_effect`` and ``locations (W, K, 3)``. Impossible
+    candidates (oneself, an absent person) are ``−inf``. Rows of absent gazers are
+    meaningless; the caller masks them.
+    """
+    people_logit, people_lik, others, slot_lik, elsewhere = _parts(params, arrays)
+    K = slot_lik.shape[-1]
+    log_z = _log_normaliser(people_logit, K, params["alpha_object"])[..., None]
+    people = jnp.where(others, people_logit + people_lik, -jnp.inf)
+    slots = params["alpha_object"] + slot_lik
+    return jnp.concatenate([people, slots, elsewhere[..., None]], axis=-1) - log_z
+
+
+def marginal_log_likelihood(params: dict, arrays: ModelArrays) -> Float[Array, "T P"]:
+    """``log p(g_ti) = log Σ_j P(z_ti = j) p(g_ti | j)``, the target summed out (0 where absent).
+
+    The same sum as ``logsumexp`` of :func:`candidate_log_probabilities`, by groups.
+    """
+    people_logit, people_lik, others, slot_lik, elsewhere = _parts(params, arrays)
+    K = slot_lik.shape[-1]
+    terms = [logsumexp(jnp.where(others, people_logit + people_lik, -jnp.inf), axis=-1), elsewhere]
+    if K:
+        terms.append(params["alpha_object"] + logsumexp(slot_lik, axis=-1))
+    total = logsumexp(jnp.stack(terms), axis=0) - _log_normaliser(people_logit, K, params["alpha_object"])
+    return jnp.where(arrays.present, total, 0.0)
+
+
+def joint_model(
+    eye_positions,
+    R_world_from_head,
+    gaze_angles,
+    present,
+    speaking,
+    measurement_scale,
+    window,
+    to_people_head,
+    location_centres,
+    *,
+    prior: JointPrior = JointPrior(),
+    frames_per_step: int | None = None,
+):
+    """numpyro model of a whole recording: biases, cone widths, speaker prior and concurrences (Park et al. 2012, eq. 3; Siegfried et al. 2017, eq. 1).
+
+    The arguments are the fields of :class:`ModelArrays`. ``location_centres
+    (W, K, 3)`` are the concurrences' initial locations per window (``K`` may be 0).
+    ``frames_per_step`` subsamples frames for SVI (the likelihood is rescaled by
+    ``numpyro.plate``); ``None`` uses every frame.
+    """
+    T, P = present.shape
+    W, K = location_centres.shape[:2]
+    dtype = gaze_angles.dtype
+    bias = numpyro.sample("bias", dist.Normal(jnp.zeros((P, 2), dtype), prior.bias_scale).to_event(2))
+    cone_width = numpyro.sample(
+        "cone_width", dist.LogNormal(jnp.full((P,), math.log(prior.cone_width_median), dtype),
+                                     prior.cone_width_log_sd).to_event(1))
+    alpha_person = numpyro.sample("alpha_person", dist.Normal(jnp.zeros((), dtype), prior.logit_scale))
+    speaker_effect = numpyro.sample("speaker_effect",
+                                    dist.Normal(jnp.asarray(prior.speaker_log_ratio, dtype), prior.speaker_log_ratio_sd))
+    params = {"bias": bias, "cone_width": cone_width, "alpha_person": alpha_person, "speaker_effect": speaker_effect}
+    if K:
+        params["alpha_object"] = numpyro.sample("alpha_object", dist.Normal(jnp.zeros((), dtype), prior.logit_scale))
+        latent = {"concurrence_offset": numpyro.sample(
+            "concurrence_offset", dist.Normal(jnp.zeros((K, 3), dtype), 1.0).to_event(2))}
+        if W > 1:
+            latent["concurrence_drift"] = numpyro.sample(
+                "concurrence_drift", dist.Normal(jnp.zeros((W, K, 3), dtype), 1.0).to_event(3))
+        params["locations"] = numpyro.deterministic(
+            "concurrence_locations", concurrence_locations(latent, location_centres, prior))
+    else:
+        params["alpha_object"] = jnp.zeros((), dtype)
+        params["locations"] = location_centres
+
+    arrays = ModelArrays(eye_positions, R_world_from_head, gaze_angles, present, speaking, measurement_scale, window,
+                         to_people_head, location_centres)
+    with numpyro.plate("frames", T, subsample_size=frames_per_step) as frames:
+        if frames_per_step is not None:
+            arrays = ModelArrays(*(a[frames] for a in arrays[:8]), location_centres)
+        numpyro.factor("gaze", jnp.sum(marginal_log_likelihood(params, arrays), axis=-1))

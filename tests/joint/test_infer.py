@@ -1,0 +1,134 @@
+"""Joint inference on one small conversation: recovery against the truth, the outputs, and failures that speak."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+from jaxgaze.joint import (JointPosterior, corrected_rays, expected_calibration_error, fit_joint, joint_data,
+                           nearest_target, ray_intersection, reliability_curve, speaker_rule_bias)
+from jaxgaze.results import RESULTS, FitError
+from tests.helpers import conversation
+
+
+def _data(scene):
+    return joint_data(scene.eye_positions, scene.R_world_from_head, scene.gaze_angles, present=scene.present,
+                      speaking=scene.speaking, measurement_scale=scene.measurement_scale, fps=scene.fps)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return conversation()
+
+
+@pytest.fixture(scope="module")
+def fitted(scene) -> JointPosterior:
+    return fit_joint(_data(scene), jax.random.key(0), num_warmup=200, num_samples=200)
+
+
+def _bias_error_deg(estimate, truth):
+    return np.degrees(np.linalg.norm(estimate - truth, axis=-1))
+
+
+def _category(targets, P, slot_to_object):
+    out = targets.copy()
+    slot = targets >= P
+    out[slot] = slot_to_object[targets[slot] - P]
+    return out
+
+
+def test_recovers_biases_and_who_looks_at_whom(scene, fitted):
+    P = scene.num_people
+    assert np.median(_bias_error_deg(fitted.bias, scene.bias)) < 1.5
+    # every bias is closer to the truth than where the pipeline started
+    assert np.all(_bias_error_deg(fitted.bias, scene.bias) < _bias_error_deg(fitted.start.bias, scene.bias) + 0.3)
+    slots = fitted.samples["concurrence_locations"].mean(0)[0]
+    assert fitted.num_concurrences >= 1
+    nearest = np.argmin(np.linalg.norm(slots[:, None] - scene.object_positions[None], axis=-1), axis=1)
+    assert np.min(np.linalg.norm(slots - scene.object_positions[nearest], axis=-1)) < 0.1
+    truth = np.where(scene.present, scene.target, -1)
+    joint = _category(fitted.map_targets(), P, P + nearest)
+    accuracy = np.mean(joint[scene.present] == truth[scene.present])
+    # the pipeline's rule on the Spk-LMedS-corrected rays, with the people as the only candidates
+    data = _data(scene)
+    rays = corrected_rays(data, speaker_rule_bias(data, jax.random.key(0))[0], 0.07)
+    rule = nearest_target(np.asarray(rays.directions), data.eye_positions, data.present,
+                          np.zeros((data.num_frames, 0, 3)), np.zeros((data.num_frames, 0), bool))
+    assert accuracy > 0.85
+    assert accuracy > np.mean(rule[scene.present] == truth[scene.present]) + 0.1
+
+
+def test_outputs_are_consistent_probabilities(scene, fitted):
+    T, P = scene.present.shape
+    m = fitted.membership
+    np.testing.assert_allclose(m.sum(-1)[scene.present], 1.0, atol=1e-5)
+    assert np.all(m[~scene.present] == 0)
+    assert np.all(np.diagonal(fitted.looks_at, axis1=1, axis2=2) == 0)  # nobody looks at themselves
+    mutual = fitted.mutual
+    np.testing.assert_allclose(mutual, np.swapaxes(mutual, 1, 2), atol=1e-6)
+    assert np.all(mutual <= np.minimum(fitted.looks_at, np.swapaxes(fitted.looks_at, 1, 2)) + 1e-6)
+    loc = fitted.concurrence_locations()
+    K = fitted.num_concurrences
+    assert loc["mean"].shape == (T, K, 3) and loc["covariance"].shape == (T, K, 3, 3) and loc["hdi"].shape == (T, K, 3, 2)
+    assert np.all(loc["hdi"][..., 0] <= loc["mean"]) and np.all(loc["mean"] <= loc["hdi"][..., 1])
+    assert np.all(np.linalg.eigvalsh(loc["covariance"]) > 0)
+    assert set(fitted.idata.groups()) >= {"posterior", "sample_stats", "observed_data"}
+    assert fitted.idata.posterior["bias"].shape == (1, 200, P, 2)
+    assert len(fitted.candidates) == m.shape[-1]
+    check = fitted.predictive_check
+    assert check["replicated"].shape[1] == P and np.all((check["p_value"] >= 0) & (check["p_value"] <= 1))
+    counts = fitted.concurrence_counts()
+    assert counts.shape == (T,) and counts.max() <= (P + K) // 2 + 1
+
+
+def test_result_code_follows_the_diagnostics(fitted):
+    d = fitted.diagnostics
+    passes = d["max_rhat"] <= 1.05 and min(d["min_ess_bulk"], d["min_ess_tail"]) >= 100 and d["divergences"] <= 2
+    assert fitted.succeeded == passes
+    assert fitted.result == (RESULTS.successful if passes else RESULTS.not_mixed)
+
+
+def test_a_run_too_short_to_mix_is_reported_and_can_raise(scene, fitted):
+    data = _data(scene)
+    short = fit_joint(data, jax.random.key(1), num_warmup=5, num_samples=20, start=fitted.start)
+    assert not short.succeeded and short.result == RESULTS.not_mixed
+    assert short.diagnostics["min_ess_bulk"] < 100
+    with pytest.raises(FitError, match="did not mix"):
+        fit_joint(data, jax.random.key(1), num_warmup=5, num_samples=20, start=fitted.start, throw=True)
+
+
+def test_svi_with_subsampled_frames_recovers_the_biases(scene, fitted):
+    post = fit_joint(_data(scene), jax.random.key(2), method="svi", num_steps=600, frames_per_step=64,
+                     num_samples=100, start=fitted.start)
+    assert post.method == "svi" and post.samples["bias"].shape == (100, scene.num_people, 2)
+    assert np.median(_bias_error_deg(post.bias, scene.bias)) < 2.0
+    assert "elbo_change" in post.diagnostics
+
+
+def test_bad_arguments():
+    data = _data(conversation())
+    with pytest.raises(ValueError, match="method must be one of nuts, svi"):
+        fit_joint(data, jax.random.key(0), method="hmc")
+    with pytest.raises(ValueError, match="num_samples must be an integer"):
+        fit_joint(data, jax.random.key(0), num_samples=0)
+    with pytest.raises(TypeError, match="JointData"):
+        fit_joint({"gaze": 1}, jax.random.key(0))
+
+
+def test_metrics_against_closed_forms():
+    rng = np.random.default_rng(0)
+    point = np.array([0.3, -0.2, 0.8])
+    origins = rng.normal(size=(4, 3))
+    np.testing.assert_allclose(ray_intersection(origins, point - origins, np.full(4, 0.05)), point, atol=1e-9)
+    confidence = np.array([0.95, 0.95, 0.55, 0.55])
+    correct = np.array([True, True, True, False])
+    # bins: 0.95 → accuracy 1 (gap 0.05), 0.55 → accuracy 0.5 (gap 0.05)
+    assert expected_calibration_error(confidence, correct) == pytest.approx(0.05)
+    mean_conf, accuracy, count = reliability_curve(confidence, correct)
+    assert count.sum() == 4 and accuracy[9] == 1.0 and accuracy[5] == 0.5
+    eyes = np.array([[[0.0, 0, 0], [2.0, 0, 0]]])
+    directions = np.array([[[1.0, 0.05, 0], [0.0, 1.0, 0]]])
+    targets = nearest_target(directions / np.linalg.norm(directions, axis=-1, keepdims=True), eyes,
+                             np.ones((1, 2), bool), np.zeros((1, 0, 3)), np.zeros((1, 0), bool))
+    np.testing.assert_array_equal(targets, [[1, -1]])

@@ -1,0 +1,163 @@
+"""The joint model: the summed-out likelihood against brute-force enumeration, gradients, and the door checks."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from numpyro import handlers
+from numpyro.infer.util import potential_energy
+
+from jaxgaze.geometry import head_pose_to_rotation
+from jaxgaze.joint import (JointPrior, candidate_log_probabilities, joint_data, joint_model,
+                           marginal_log_likelihood)
+from jaxgaze.joint.infer import _arrays
+
+
+def _tiny(seed=0, T=2, P=3, K=1):
+    rng = np.random.default_rng(seed)
+    angles = np.linspace(0, 2 * np.pi, P, endpoint=False)
+    eyes = np.stack([np.cos(angles), np.sin(angles), np.full(P, 1.2)], -1)[None] + 0.02 * rng.normal(size=(T, P, 3))
+    yaw = angles[None] + np.pi + 0.3 * rng.normal(size=(T, P))
+    R = np.asarray(head_pose_to_rotation(jnp.asarray(yaw), jnp.asarray(0.1 * rng.normal(size=(T, P))),
+                                         jnp.zeros((T, P))))
+    gaze = 0.3 * rng.normal(size=(T, P, 2))
+    speaking = rng.random((T, P)) < 0.4
+    data = joint_data(eyes, R, gaze, speaking=speaking, measurement_scale=0.01 + 0.02 * rng.random((T, P)), fps=5.0)
+    centres = rng.normal(size=(1, K, 3)) * 0.3 + np.array([0.0, 0.0, 0.8])
+    params = {"bias": 0.1 * rng.normal(size=(P, 2)), "cone_width": 0.05 + 0.1 * rng.random(P),
+              "alpha_person": 0.4, "alpha_object": -0.3, "speaker_effect": 1.8,
+              "locations": centres + 0.1 * rng.normal(size=centres.shape)}
+    return data, centres, params
+
+
+def _brute_force(data, params):
+    """``log Σ_z p(g, z)`` by enumerating every joint assignment, with the formulas written out in numpy."""
+    T, P = data.present.shape
+    K = params["locations"].shape[1]
+
+    def log_fisher(cosine, h):
+        kappa = 1.0 / h**2
+        return math.log(kappa) - math.log(2 * math.pi) - math.log(1 - math.exp(-2 * kappa)) + kappa * (cosine - 1)
+
+    per_gazer = []  # for each (t, i): {candidate: log prior + log likelihood}
+    for t in range(T):
+        for i in range(P):
+            yaw, tilt = data.gaze_angles[t, i] + params["bias"][i]
+            head = np.array([math.cos(tilt) * math.cos(yaw), math.cos(tilt) * math.sin(yaw), math.sin(tilt)])
+            world = data.R_world_from_head[t, i] @ head
+            h = math.sqrt(params["cone_width"][i] ** 2 + data.measurement_scale[t, i] ** 2)
+            logits, liks = {}, {}
+            for j in range(P):
+                if j != i:
+                    logits[j] = params["alpha_person"] + params["speaker_effect"] * data.speaking[t, j]
+                    u = data.eye_positions[t, j] - data.eye_positions[t, i]
+                    liks[j] = log_fisher(world @ u / np.linalg.norm(u), h)
+            for k in range(K):
+                logits[P + k] = params["alpha_object"]
+                u = params["locations"][0, k] - data.eye_positions[t, i]
+                liks[P + k] = log_fisher(world @ u / np.linalg.norm(u), h)
+            logits["e"] = 0.0
+            liks["e"] = -math.log(4 * math.pi)
+            norm = math.log(sum(math.exp(v) for v in logits.values()))
+            per_gazer.append({c: logits[c] - norm + liks[c] for c in logits})
+    total = -math.inf
+    for choice in itertools.product(*[list(g) for g in per_gazer]):
+        lp = sum(g[c] for g, c in zip(per_gazer, choice))
+        total = np.logaddexp(total, lp)
+    return total, per_gazer
+
+
+def test_marginal_matches_brute_force_enumeration(x64):
+    data, centres, params = _tiny()
+    arrays = _arrays(data, centres, jnp.float64)
+    jparams = jax.tree_util.tree_map(jnp.asarray, params)
+    expected, per_gazer = _brute_force(data, params)
+    assert float(jnp.sum(marginal_log_likelihood(jparams, arrays))) == pytest.approx(expected, rel=1e-10, abs=1e-9)
+    lp = np.asarray(candidate_log_probabilities(jparams, arrays))
+    assert float(np.sum(jax.scipy.special.logsumexp(lp, axis=-1))) == pytest.approx(expected, rel=1e-10)
+    # one gazer's candidates, order: people, concurrences, elsewhere
+    g = per_gazer[1]  # frame 0, person 1
+    assert lp[0, 1, 1] == -np.inf
+    assert lp[0, 1, 0] == pytest.approx(g[0], rel=1e-10) and lp[0, 1, 3] == pytest.approx(g[3], rel=1e-10)
+    assert lp[0, 1, 4] == pytest.approx(g["e"], rel=1e-10)
+    # the model's factor is the same sum
+    latent = {"bias": params["bias"], "cone_width": params["cone_width"], "alpha_person": params["alpha_person"],
+              "alpha_object": params["alpha_object"], "speaker_effect": params["speaker_effect"],
+              "concurrence_offset": (params["locations"][0] - centres[0]) / JointPrior().location_scale}
+    trace = handlers.trace(handlers.substitute(joint_model, latent)).get_trace(*arrays)
+    assert float(trace["gaze"]["fn"].log_factor.sum()) == pytest.approx(expected, rel=1e-10)
+
+
+def test_absent_people_are_no_candidates_and_add_nothing(x64):
+    data, centres, params = _tiny(seed=1, T=2, P=4)
+    present = np.ones((2, 4), bool)
+    present[0, 2] = False
+    gaze = data.gaze_angles.copy()
+    gaze[0, 2] = np.nan  # absent: may be NaN
+    masked = joint_data(data.eye_positions, data.R_world_from_head, gaze, present=present,
+                        speaking=data.speaking, measurement_scale=data.measurement_scale, fps=5.0)
+    arrays = _arrays(masked, centres, jnp.float64)
+    jparams = jax.tree_util.tree_map(jnp.asarray, params)
+    lp = np.asarray(candidate_log_probabilities(jparams, arrays))
+    assert np.all(lp[0, [0, 1, 3], 2] == -np.inf)  # nobody looks at the absent person
+    ll = np.asarray(marginal_log_likelihood(jparams, arrays))
+    assert ll[0, 2] == 0.0 and np.all(np.isfinite(ll))
+
+
+def test_gradients_match_finite_differences(x64):
+    data, centres, params = _tiny(seed=2)
+    arrays = tuple(_arrays(data, centres, jnp.float64))
+    rng = np.random.default_rng(3)
+    u = {"bias": jnp.asarray(0.1 * rng.normal(size=(3, 2))), "cone_width": jnp.asarray(np.log([0.05, 0.08, 0.1])),
+         "alpha_person": jnp.asarray(0.2), "alpha_object": jnp.asarray(-0.1), "speaker_effect": jnp.asarray(1.7), "concurrence_offset": jnp.asarray(0.1 * rng.normal(size=(1, 3)))}
+    energy = lambda z: potential_energy(joint_model, arrays, {}, z)  # noqa: E731
+    grad = jax.grad(energy)(u)
+    flat, unravel = jax.flatten_util.ravel_pytree(u)
+    g, _ = jax.flatten_util.ravel_pytree(grad)
+    eps = 1e-6
+    numeric = np.array([(energy(unravel(flat.at[k].add(eps))) - energy(unravel(flat.at[k].add(-eps)))) / (2 * eps)
+                        for k in range(flat.size)])
+    np.testing.assert_allclose(np.asarray(g), numeric, rtol=1e-5, atol=1e-5)
+
+
+def _valid():
+    data, _, _ = _tiny(seed=4, T=3, P=3)
+    return dict(eye_positions=data.eye_positions, R_world_from_head=data.R_world_from_head,
+                gaze_angles=data.gaze_angles)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda a: a.update(eye_positions=a["eye_positions"][:, :2]), "eye_positions must have shape"),
+    (lambda a: a.update(R_world_from_head=a["R_world_from_head"][..., :2]), "R_world_from_head must have shape"),
+    (lambda a: a.update(gaze_angles=a["gaze_angles"][..., :1]), r"gaze_angles must have shape \(T, P, 2\)"),
+    (lambda a: a.update(present=np.ones((3, 2), bool)), "present must have shape"),
+    (lambda a: a["eye_positions"].__setitem__((1, 2, 0), np.nan), "eye_positions is not finite .* frame 1, person '2'"),
+    (lambda a: a["gaze_angles"].__setitem__((2, 0, 1), np.inf), "gaze_angles is not finite .* frame 2, person '0'"),
+    (lambda a: a.update(present=np.array([[1, 1, 0]] * 3, bool)), "person '2' is never present"),
+    (lambda a: a.update(speaking={"3": np.zeros(3)}), "speaking flags for an unknown person '3'"),
+    (lambda a: a.update(speaking=np.zeros((3, 4))), "speaking has flags for 4 people, but there are 3"),
+    (lambda a: a.update(gaze_angles=np.degrees(a["gaze_angles"]) * 10), r"radians \(degrees\?\)"),
+    (lambda a: a.update(eye_positions=a["eye_positions"] * 1000), r"metres \(millimetres\?\)"),
+    (lambda a: a["R_world_from_head"].__setitem__((0, 1), 2 * np.eye(3)), "frame 0, person '1' is not a rotation"),
+    (lambda a: a.update(measurement_scale=-np.ones((3, 3))), "measurement_scale must be finite and ≥ 0"),
+    (lambda a: a.update(people=["a", "a", "b"]), "names must be unique"),
+])
+def test_bad_input_names_what_and_where(change, message):
+    arrays = {k: np.array(v, copy=True) for k, v in _valid().items()}
+    change(arrays)
+    with pytest.raises(ValueError, match=message):
+        joint_data(**arrays)
+
+
+def test_speaking_by_name_and_windows():
+    a = _valid()
+    data = joint_data(**a, speaking={"1": [0, 1, 1]}, people=None, fps=1.0, window_s=2.0)
+    np.testing.assert_array_equal(data.speaking[:, 1], [0, 1, 1])
+    assert data.speaking[:, [0, 2]].sum() == 0
+    np.testing.assert_array_equal(data.window, [0, 0, 1])
+    assert data.num_windows == 2 and data.has_speech
