@@ -13,7 +13,7 @@ Where each equation and section lives:
 | eq. 1: ``p0``, the nearest inlier along the line | ``calibrate_cone`` | ``calibration/cone_fit.py`` |
 | eq. 2: the convex apex programme ``min ξ + λα`` | ``solve_cone_apex`` | ``calibration/cone_fit.py`` |
 | eq. 4: bandwidth ``h`` from perspective distances | ``calibrate_cone`` (with ``jaxgaze.geometry.perspective_distance``) | ``calibration/cone_fit.py`` |
-| Sec. 3.2, Bayesian: posterior of ``p``, ``v``, ``h`` with outliers | ``calibration_model``, ``calibrate_cone_posterior``, ``calibrate_cone_posterior_batch`` | ``calibration/posterior.py`` |
+| Sec. 3.2, Bayesian: posterior of ``p``, ``v``, ``h`` with outliers | ``calibration_model``, ``calibration_log_likelihood``, ``calibrate_cone_posterior``, ``calibrate_cone_posterior_batch`` | ``calibration/posterior.py`` |
 """
 
 from jaxgaze.calibration.cone_fit import (
@@ -27,6 +27,7 @@ from jaxgaze.calibration.cone_fit import (
 )
 from jaxgaze.calibration.posterior import (
     calibration_model,
+    calibration_log_likelihood,
     calibrate_cone_posterior,
     calibrate_cone_posterior_batch,
     CalibrationPosterior,
@@ -41,6 +42,7 @@ __all__ = [
     "DEFAULT_INLIER_THRESHOLD",
     "DEFAULT_RANSAC_ITERATIONS",
     "calibration_model",
+    "calibration_log_likelihood",
     "calibrate_cone_posterior",
     "calibrate_cone_posterior_batch",
     "CalibrationPosterior",

@@ -45,6 +45,7 @@ if TYPE_CHECKING:  # arviz is imported when a posterior is summarised: it is slo
 
 __all__ = [
     "calibration_model",
+    "calibration_log_likelihood",
     "calibrate_cone_posterior",
     "calibrate_cone_posterior_batch",
     "CalibrationPosterior",
@@ -83,21 +84,43 @@ def calibration_model(
     bandwidth = numpyro.sample("bandwidth", dist.LogNormal(jnp.log(0.03), 1.0))
     outlier_share = numpyro.sample("outlier_share", dist.Beta(1.0, 9.0))
 
+    per_point, inlier_probability = calibration_log_likelihood(points, eye_center, direction, bandwidth,
+                                                               outlier_share, outlier_bandwidth)
+    numpyro.deterministic("inlier_probability", inlier_probability)
+    if mask is not None:
+        per_point = jnp.where(mask, per_point, 0.0)
+    numpyro.factor("points", jnp.sum(per_point))
+
+
+def calibration_log_likelihood(
+    points: Float[Array, "M 3"],
+    eye_center: Float[Array, "3"],
+    direction: Float[Array, "3"],
+    bandwidth,
+    outlier_share,
+    outlier_bandwidth: float = 0.5,
+) -> tuple[Float[Array, " M"], Float[Array, " M"]]:
+    """Per-point log likelihood of calibration points of regard, and each point's inlier probability (Park et al. 2012, Sec. 3.2).
+
+    A point is on the wearer's cone around the primary ray ``(eye_center,
+    direction)`` with bandwidth ``h`` (share ``1 − outlier_share``), or, looking
+    elsewhere, on a broad cone of ``outlier_bandwidth`` around the camera's +x
+    axis. The background does not move with the ray: looking elsewhere says
+    nothing about where the eyes are, and a ray-centred one lets outliers drag the
+    apex. Camera frame (+x forward), metres.
+    """
+    dtype = points.dtype
+
     def log_density(origin, axis, h):
         rays = GazeRays(origin[None], axis[None], h)
         return jax.vmap(lambda y: cone_log_density(rays, y)[0])(points)
 
     inlier = jnp.log1p(-outlier_share) + log_density(eye_center, direction, bandwidth)
-    # The background component does not move with the ray: looking elsewhere says
-    # nothing about where the eyes are, and a ray-centred one lets outliers drag the apex.
     camera_forward = log_density(jnp.zeros(3, dtype), jnp.array([1.0, 0.0, 0.0], dtype),
                                  jnp.asarray(outlier_bandwidth, dtype))
     outlier = jnp.log(outlier_share) + camera_forward
     per_point = jnp.logaddexp(inlier, outlier)
-    numpyro.deterministic("inlier_probability", jnp.exp(inlier - per_point))
-    if mask is not None:
-        per_point = jnp.where(mask, per_point, 0.0)
-    numpyro.factor("points", jnp.sum(per_point))
+    return per_point, jnp.exp(inlier - per_point)
 
 
 class CalibrationPosterior(NamedTuple):

@@ -36,6 +36,15 @@ class JointData(NamedTuple):
         people: ``P`` names.
         fps: frames per second.
         window_s: the concurrence window length (seconds).
+        calibration_points: ``(P, M, 3)`` each wearer's calibration points of regard in
+            their camera frame (Park et al. 2012, Sec. 3.2); padding elsewhere.
+        calibration_mask: ``(P, M)`` the real points (none for a person without a camera).
+
+    For a **wearer** (a person with calibration points) ``eye_positions`` holds the
+    head-mounted camera's centre and ``R_world_from_head`` its rotation
+    (``R_world_from_camera``); the gaze angles are in the camera frame (``(0, 0)``
+    without an eye tracker: the primary ray). The model infers the eyes' offset
+    from the camera with the rest.
     """
 
     eye_positions: Float[np.ndarray, "T P 3"]
@@ -48,6 +57,13 @@ class JointData(NamedTuple):
     people: tuple[str, ...]
     fps: float
     window_s: float
+    calibration_points: Float[np.ndarray, "P M 3"]
+    calibration_mask: Bool[np.ndarray, "P M"]
+
+    @property
+    def wearers(self) -> tuple[int, ...]:
+        """Indices of the people with calibration points (head-mounted cameras)."""
+        return tuple(int(i) for i in np.flatnonzero(self.calibration_mask.any(axis=1)))
 
     @property
     def num_frames(self) -> int:
@@ -128,6 +144,7 @@ def joint_data(
     people: Sequence[str] | None = None,
     fps: float = 10.0,
     window_s: float = 60.0,
+    calibration_points: Mapping[str, object] | None = None,
 ) -> JointData:
     """Check a recording and pack it as :class:`JointData` (Siegfried et al. 2017, Sec. 2; Park et al. 2012, Sec. 3.1).
 
@@ -142,6 +159,10 @@ def joint_data(
             tool's own uncertainty; ``None`` when not known.
         people: ``P`` names (default ``"0"``, ``"1"``, …).
         fps: frames per second; window_s: concurrence window length (seconds).
+        calibration_points: for wearers of head-mounted cameras, a mapping from name to
+            ``(M, 3)`` points of regard in their camera frame (+x forward, metres; Park
+            et al. 2012, Sec. 3.2). Their ``eye_positions`` are then the camera centres
+            and ``R_world_from_head`` the camera rotations (see :class:`JointData`).
 
     Raises:
         ValueError: naming the array, frame and person for inconsistent shapes, NaN
@@ -214,5 +235,38 @@ def joint_data(
     eyes = np.where(mask[..., None], eyes, np.where(np.isfinite(eyes), eyes, 0.0))
     R = np.where(mask[..., None, None], R, np.eye(3))
     window = (np.arange(T) / fps // window_s).astype(np.int64)
+    points, point_mask = _calibration(calibration_points, people)
     return JointData(eyes, R, gaze, mask, np.where(mask, speak, 0.0), scale, window, people, float(fps),
-                     float(window_s))
+                     float(window_s), points, point_mask)
+
+
+def _calibration(calibration_points, people: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    P = len(people)
+    if not calibration_points:
+        return np.zeros((P, 0, 3)), np.zeros((P, 0), bool)
+    if not isinstance(calibration_points, Mapping):
+        raise ValueError("calibration_points must be a mapping from person name to (M, 3) points of regard")
+    arrays = {}
+    for who, value in calibration_points.items():
+        if who not in people:
+            raise ValueError(f"calibration points for an unknown person {who!r}; the people are {', '.join(people)}")
+        y = np.asarray(value, dtype=float)
+        if y.ndim != 2 or y.shape[1] != 3 or y.shape[0] < 3:
+            raise ValueError(f"calibration points of {who!r} must have shape (M, 3) with M ≥ 3, got {y.shape}")
+        if not np.all(np.isfinite(y)):
+            raise ValueError(f"calibration point {int(np.argwhere(~np.isfinite(y))[0, 0])} of {who!r} is not finite")
+        if np.median(y[:, 0]) <= 0:
+            raise ValueError(f"calibration points of {who!r} are mostly behind the camera (x ≤ 0): they must be in "
+                             "the camera frame (+x forward, +y left, +z up), not OpenCV's or the world frame")
+        if np.linalg.norm(y, axis=1).max() > MAX_SCENE_EXTENT_M:
+            raise ValueError(f"calibration points of {who!r} reach {np.linalg.norm(y, axis=1).max():.3g} m: "
+                             "they must be metres (millimetres?)")
+        arrays[people.index(who)] = y
+    M = max(len(y) for y in arrays.values())
+    points = np.zeros((P, M, 3))
+    points[..., 0] = 1.0  # padding: harmless points ahead of the camera
+    point_mask = np.zeros((P, M), bool)
+    for i, y in arrays.items():
+        points[i, : len(y)] = y
+        point_mask[i, : len(y)] = True
+    return points, point_mask

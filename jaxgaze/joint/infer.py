@@ -26,7 +26,7 @@ from jaxgaze.geometry import angle_between
 from jaxgaze.joint.data import JointData
 from jaxgaze.joint.init import JointStart, directions_to_people, joint_start
 from jaxgaze.joint.model import (JointPrior, ModelArrays, candidate_log_probabilities, concurrence_locations,
-                                 joint_model)
+                                 eye_positions, joint_model)
 from jaxgaze.nuts import quiet_single_chain, sample_nuts
 from jaxgaze.rays import GazeRays
 from jaxgaze.results import RESULTS, name, throw_if_failed
@@ -42,7 +42,7 @@ MAX_DIVERGENT_SHARE = 0.01
 #: Inference methods of :func:`fit_joint`.
 METHODS = ("nuts", "svi")
 _SUMMARY_SITES = ("bias", "cone_width", "alpha_person", "alpha_object", "speaker_effect",
-                  "concurrence_locations")
+                  "concurrence_locations", "eye_offset")
 #: Draws used for the membership probabilities and the predictive check.
 _MAX_PROBABILITY_DRAWS = 200
 
@@ -56,7 +56,9 @@ def _arrays(data: JointData, centres, dtype) -> ModelArrays:
     f = lambda a: jnp.asarray(a, dtype)  # noqa: E731
     return ModelArrays(f(data.eye_positions), f(data.R_world_from_head), f(data.gaze_angles),
                        jnp.asarray(data.present), f(data.speaking), f(data.measurement_scale),
-                       jnp.asarray(data.window, jnp.int32), f(directions_to_people(data)), f(centres))
+                       jnp.asarray(data.window, jnp.int32), f(directions_to_people(data)), f(centres),
+                       f(data.calibration_points), jnp.asarray(data.calibration_mask),
+                       jnp.asarray(data.wearers, jnp.int32).reshape(-1))
 
 
 def _start_values(start: JointStart, prior: JointPrior, num_people: int) -> dict:
@@ -70,11 +72,20 @@ def _start_values(start: JointStart, prior: JointPrior, num_people: int) -> dict
         values["concurrence_offset"] = np.zeros((K, 3))
         if W > 1:
             values["concurrence_drift"] = np.zeros((W, K, 3))
+    if start.eye_offset.shape[0]:
+        values["eye_offset"] = np.asarray(start.eye_offset, float)
+        values["calibration_outlier_share"] = np.full(start.eye_offset.shape[0], 0.1)
     return values
 
 
 def _unconstrained(values: dict) -> dict:
-    return {k: (np.log(v) if k in ("cone_width",) else v) for k, v in values.items()}
+    """numpyro's unconstrained values: log for the positive widths, logit for the outlier shares."""
+    out = dict(values)
+    out["cone_width"] = np.log(values["cone_width"])
+    if "calibration_outlier_share" in values:
+        share = values["calibration_outlier_share"]
+        out["calibration_outlier_share"] = np.log(share) - np.log1p(-share)
+    return out
 
 
 def _params(draw: dict, centres, prior: JointPrior) -> dict:
@@ -86,6 +97,8 @@ def _params(draw: dict, centres, prior: JointPrior) -> dict:
     else:
         p["alpha_object"] = jnp.zeros((), centres.dtype)
         p["locations"] = centres
+    if "eye_offset" in draw:
+        p["eye_offset"] = draw["eye_offset"]
     return p
 
 
@@ -124,7 +137,7 @@ def _predictive(key, draws: dict, arrays: ModelArrays, prior: JointPrior):
         lp = candidate_log_probabilities(params, arrays)
         k1, k2 = jax.random.split(key)
         z = jax.random.categorical(k1, lp, axis=-1)  # (T, P)
-        eyes = arrays.eye_positions
+        eyes = eye_positions(params, arrays)
         targets = jnp.concatenate([jnp.broadcast_to(eyes[:, None], (T, P, P, 3)),
                                    jnp.broadcast_to(params["locations"][arrays.window][:, None],
                                                     (T, P) + params["locations"].shape[1:])], axis=2)
@@ -299,10 +312,12 @@ def _inference_data(samples: dict, stats: dict | None, data: JointData, K: int):
 
     W = data.num_windows
     coords = {"person": list(data.people), "angle": ["yaw", "tilt"], "concurrence": list(range(K)),
+              "wearer": [data.people[i] for i in data.wearers],
               "window": list(range(W)), "axis": ["x", "y", "z"], "frame": list(range(data.num_frames))}
     dims = {"bias": ["person", "angle"], "cone_width": ["person"], "concurrence_offset": ["concurrence", "axis"],
             "concurrence_drift": ["window", "concurrence", "axis"],
             "concurrence_locations": ["window", "concurrence", "axis"],
+            "eye_offset": ["wearer", "axis"], "calibration_outlier_share": ["wearer"],
             "gaze_angles": ["frame", "person", "angle"], "present": ["frame", "person"],
             "speaking": ["frame", "person"]}
     observed = {"gaze_angles": data.gaze_angles, "present": data.present.astype(np.int8),
@@ -355,6 +370,9 @@ def fit_joint(
     start = joint_start(data, k_start, progress=progress) if start is None else start
     if start.concurrence_centres.shape[0] != data.num_windows:
         raise ValueError(f"start has {start.concurrence_centres.shape[0]} windows, the data {data.num_windows}")
+    if start.eye_offset.shape[0] != len(data.wearers):
+        raise ValueError(f"start has eye offsets of {start.eye_offset.shape[0]} wearers, the data "
+                         f"{len(data.wearers)}; build it with joint_start")
     dtype = jnp.result_type(float)
     arrays = _arrays(data, start.concurrence_centres, dtype)
     values = _start_values(start, prior, data.num_people)

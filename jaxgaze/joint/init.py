@@ -20,13 +20,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float, Int
 
-from jaxgaze.bias import (candidate_frames, gaze_angles_to_direction, gaze_offsets, head_target_angle, head_to_world,
+from jaxgaze.bias import (candidate_frames, direction_to_gaze_angles, gaze_angles_to_direction, gaze_offsets, head_target_angle, head_to_world,
                           lmeds_bias, target_direction_head)
+from jaxgaze.calibration import calibrate_cone
 from jaxgaze.concurrence import ConcurrenceOptions, find_concurrences_over_frames
 from jaxgaze.joint.data import JointData
 from jaxgaze.rays import GazeRays
+from jaxgaze.results import name
 
-__all__ = ["JointStart", "directions_to_people", "speaker_rule_bias", "corrected_rays", "initial_concurrences", "joint_start",
+__all__ = ["JointStart", "directions_to_people", "wearer_eyes", "calibrate_wearers", "speaker_rule_bias", "corrected_rays", "initial_concurrences", "joint_start",
            "DEFAULT_CONCURRENCE_OPTIONS"]
 
 #: The mean-shift options of the start: modes above the floor and below 3 m, and a
@@ -42,12 +44,16 @@ class JointStart(NamedTuple):
         bias_frames: ``(P,)`` frames each bias used.
         concurrence_centres: ``(W, K, 3)`` initial free concurrences per window.
         concurrence_support: ``(K,)`` frames in which each was found.
+        eye_offset: ``(Nw, 3)`` each wearer's eye centre in the camera frame, from Park's
+            calibration (:func:`~jaxgaze.calibration.calibrate_cone`); their bias is
+            the angles of its primary direction.
     """
 
     bias: Float[np.ndarray, "P 2"]
     bias_frames: Int[np.ndarray, " P"]
     concurrence_centres: Float[np.ndarray, "W K 3"]
     concurrence_support: Int[np.ndarray, " K"]
+    eye_offset: Float[np.ndarray, "Nw 3"] = np.zeros((0, 3))
 
     @property
     def num_concurrences(self) -> int:
@@ -108,12 +114,37 @@ def speaker_rule_bias(
     return bias, used
 
 
-def corrected_rays(data: JointData, bias, cone_width) -> GazeRays:
-    """``(T, P)`` world-frame rays ``(p_ti, R_ti Φ(g_ti + b_i))`` with bandwidth ``h_i``, masked by presence."""
+def wearer_eyes(data: JointData, eye_offset) -> np.ndarray:
+    """``(T, P, 3)`` eye midpoints: the camera centre plus ``R c`` for each wearer (Park et al. 2012, Sec. 3.2)."""
+    eyes = np.array(data.eye_positions, copy=True)
+    for n, i in enumerate(data.wearers):
+        eyes[:, i] += np.einsum("tij,j->ti", data.R_world_from_head[:, i], np.asarray(eye_offset)[n])
+    return eyes
+
+
+def calibrate_wearers(data: JointData, key) -> tuple[np.ndarray, np.ndarray]:
+    """Park's calibration of each wearer (Sec. 3.2): ``(eye offsets (Nw, 3), primary-ray biases (Nw, 2))``."""
+    offsets, biases = [], []
+    for n, i in enumerate(data.wearers):
+        points = data.calibration_points[i][data.calibration_mask[i]]
+        fit = calibrate_cone(jnp.asarray(points), key=jax.random.fold_in(key, n), throw=False)
+        ok = name(fit.result) == "successful"
+        offsets.append(np.asarray(fit.eye_center) if ok else np.zeros(3))
+        direction = np.asarray(fit.direction) if ok else np.array([1.0, 0.0, 0.0])
+        biases.append(np.asarray(direction_to_gaze_angles(jnp.asarray(direction))))
+    return np.reshape(offsets, (-1, 3)), np.reshape(biases, (-1, 2))
+
+
+def corrected_rays(data: JointData, bias, cone_width, eye_offset=None) -> GazeRays:
+    """``(T, P)`` world-frame rays ``(p_ti, R_ti Φ(g_ti + b_i))`` with bandwidth ``h_i``, masked by presence.
+
+    Wearers' rays start at their eyes, the camera centre plus ``R c`` (``eye_offset``, default 0).
+    """
     d = head_to_world(gaze_angles_to_direction(jnp.asarray(data.gaze_angles) + jnp.asarray(bias)[None]),
                       jnp.asarray(data.R_world_from_head))
     h = jnp.broadcast_to(jnp.asarray(cone_width, d.dtype), data.present.shape)
-    return GazeRays(data.eye_positions, d, h, data.present)
+    offset = np.zeros((len(data.wearers), 3)) if eye_offset is None else eye_offset
+    return GazeRays(wearer_eyes(data, offset), d, h, data.present)
 
 
 def initial_concurrences(
@@ -123,7 +154,7 @@ def initial_concurrences(
     options: ConcurrenceOptions = DEFAULT_CONCURRENCE_OPTIONS,
     stride: int = 1,
     person_angle: float = 0.2,
-    cluster_angle: float = 0.1,
+    cluster_angle: float = 0.15,
     min_share: float = 0.03,
     max_concurrences: int = 8,
     progress: bool = False,
@@ -199,13 +230,16 @@ def joint_start(
     stride: int | None = None,
     progress: bool = False,
 ) -> JointStart:
-    """The pipeline's answer as the joint fit's start: Spk-LMedS biases, then concurrences of the corrected rays.
+    """The pipeline's answer as the joint fit's start: Spk-LMedS biases (Park's calibration for wearers),
+    then the concurrences of the corrected rays.
 
     ``stride`` thins the frames searched for concurrences (default: about 300 frames).
     """
     bias, used = speaker_rule_bias(data, key)
-    rays = corrected_rays(data, bias, cone_width)
+    eye_offset, wearer_bias = calibrate_wearers(data, key)
+    bias[list(data.wearers)] = wearer_bias
+    rays = corrected_rays(data, bias, cone_width, eye_offset)
     stride = max(1, data.num_frames // 300) if stride is None else int(stride)
     centres, support = initial_concurrences(data, rays, options=options, stride=stride, progress=progress)
-    return JointStart(bias, used, centres, support)
+    return JointStart(bias, used, centres, support, eye_offset)
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpyro
 import numpyro.distributions as dist
@@ -33,11 +34,12 @@ from jax.scipy.special import logsumexp
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxgaze.bias import gaze_angles_to_direction, head_to_world
+from jaxgaze.calibration import calibration_log_likelihood
 from jaxgaze.cone import cone_direction_log_density
 from jaxgaze.geometry import unit
 
 __all__ = ["ELSEWHERE_LOG_DENSITY", "JointPrior", "ModelArrays", "joint_model", "candidate_log_probabilities", "marginal_log_likelihood",
-           "concurrence_locations"]
+           "concurrence_locations", "eye_positions"]
 
 
 #: Log density (per steradian) of a glance "elsewhere": uniform on the sphere.
@@ -56,6 +58,8 @@ class JointPrior(NamedTuple):
             2017: 5–8 times, so the centre is log 6.3).
         location_scale: sd (m) of a concurrence around its mean-shift initialisation.
         window_drift: sd (m) of a concurrence's per-window move around its own centre.
+        eye_offset_scale: sd (m) of a wearer's eye centre in the camera frame (Park et al.
+            2012, Sec. 3.2, as in :func:`~jaxgaze.calibration.calibration_model`).
     """
 
     bias_scale: float = 0.25
@@ -66,13 +70,16 @@ class JointPrior(NamedTuple):
     speaker_log_ratio_sd: float = 0.15
     location_scale: float = 0.5
     window_drift: float = 0.1
+    eye_offset_scale: float = 0.2
 
 
 class ModelArrays(NamedTuple):
     """The arrays the model reads, as JAX arrays (see :class:`~jaxgaze.joint.JointData`).
 
     ``to_people_head[t, i, j]`` is the unit direction from person ``i``'s eyes to
-    person ``j``'s, in ``i``'s head frame (data: the people's positions are known).
+    person ``j``'s, in ``i``'s head frame (data: the people's positions are known;
+    with wearers of head-mounted cameras it is recomputed from the inferred eyes).
+    ``wearer_index`` lists the wearers; for them ``eye_positions`` are camera centres.
     """
 
     eye_positions: Float[Array, "T P 3"]
@@ -84,6 +91,9 @@ class ModelArrays(NamedTuple):
     window: Int[Array, " T"]
     to_people_head: Float[Array, "T P P 3"]
     location_centres: Float[Array, "W K 3"]
+    calibration_points: Float[Array, "P M 3"]
+    calibration_mask: Bool[Array, "P M"]
+    wearer_index: Int[Array, " Nw"]
 
 
 def concurrence_locations(latent: dict, centres: Float[Array, "W K 3"], prior: JointPrior) -> Float[Array, "W K 3"]:
@@ -94,9 +104,26 @@ def concurrence_locations(latent: dict, centres: Float[Array, "W K 3"], prior: J
     return locations
 
 
+def eye_positions(params: dict, arrays: ModelArrays) -> Float[Array, "T P 3"]:
+    """Everyone's eye midpoints: as given, and for a wearer ``C_t + R_t c`` (camera centre plus the inferred offset)."""
+    if not arrays.wearer_index.shape[0]:
+        return arrays.eye_positions
+    w = arrays.wearer_index
+    offset = jnp.einsum("tnij,nj->tni", arrays.R_world_from_head[:, w], params["eye_offset"])
+    return arrays.eye_positions.at[:, w].add(offset)
+
+
+def _to_people_head(eyes, R):
+    toward = unit(eyes[:, None, :, :] - eyes[:, :, None, :])  # (T, gazer, target, 3), world
+    return jnp.einsum("tiab,tija->tijb", R, toward)  # R_head_from_world = Rᵀ
+
+
 def _parts(params: dict, arrays: ModelArrays):
     """Per candidate group (people, concurrences): the prior logits, the log likelihoods and the validity masks."""
-    eyes, R, gaze, present, speaking, scale, window, to_people_head, _ = arrays
+    _, R, gaze, present, speaking, scale, window, to_people_head = arrays[:8]
+    eyes = eye_positions(params, arrays)
+    if arrays.wearer_index.shape[0]:
+        to_people_head = _to_people_head(eyes, R)
     T, P = present.shape
     directions_head = gaze_angles_to_direction(gaze + params["bias"])  # (T, P, 3)
     width = jnp.sqrt(jnp.square(params["cone_width"])[None] + jnp.square(scale))[..., None]  # (T, P, 1)
@@ -162,6 +189,9 @@ def joint_model(
     window,
     to_people_head,
     location_centres,
+    calibration_points,
+    calibration_mask,
+    wearer_index,
     *,
     prior: JointPrior = JointPrior(),
     frames_per_step: int | None = None,
@@ -170,6 +200,10 @@ def joint_model(
 
     The arguments are the fields of :class:`ModelArrays`. ``location_centres
     (W, K, 3)`` are the concurrences' initial locations per window (``K`` may be 0).
+    A wearer's calibration points (Park et al. 2012, Sec. 3.2) lie on the cone of
+    the same primary ray ``(c, Φ(b))`` and width ``h`` as their gaze in the
+    recording (:func:`~jaxgaze.calibration.calibration_log_likelihood`), so the
+    calibration is inferred with the rest.
     ``frames_per_step`` subsamples frames for SVI (the likelihood is rescaled by
     ``numpyro.plate``); ``None`` uses every frame.
     """
@@ -198,8 +232,18 @@ def joint_model(
         params["locations"] = location_centres
 
     arrays = ModelArrays(eye_positions, R_world_from_head, gaze_angles, present, speaking, measurement_scale, window,
-                         to_people_head, location_centres)
+                         to_people_head, location_centres, calibration_points, calibration_mask, wearer_index)
+    num_wearers = wearer_index.shape[0]
+    if num_wearers:
+        params["eye_offset"] = numpyro.sample(
+            "eye_offset", dist.Normal(jnp.zeros((num_wearers, 3), dtype), prior.eye_offset_scale).to_event(2))
+        outlier_share = numpyro.sample("calibration_outlier_share",
+                                       dist.Beta(jnp.ones(num_wearers, dtype), 9.0).to_event(1))
+        direction = gaze_angles_to_direction(bias[wearer_index])  # the primary ray, camera frame
+        per_point, _ = jax.vmap(calibration_log_likelihood)(
+            calibration_points[wearer_index], params["eye_offset"], direction, cone_width[wearer_index], outlier_share)
+        numpyro.factor("calibration", jnp.sum(jnp.where(calibration_mask[wearer_index], per_point, 0.0)))
     with numpyro.plate("frames", T, subsample_size=frames_per_step) as frames:
         if frames_per_step is not None:
-            arrays = ModelArrays(*(a[frames] for a in arrays[:8]), location_centres)
+            arrays = ModelArrays(*(a[frames] for a in arrays[:8]), *arrays[8:])
         numpyro.factor("gaze", jnp.sum(marginal_log_likelihood(params, arrays), axis=-1))

@@ -89,9 +89,46 @@ Generative model, for one scene:
    ``target_positions`` NaN, ``measurement_scale = 0``; nobody looks at an
    absent person. Positions and head poses stay finite everywhere.
 
+10. **Head-mounted cameras (optional).** With ``num_wearers = W > 0`` the
+    first ``W`` people wear a head-mounted camera and no eye tracker (Park,
+    Jain & Sheikh 2012). Each wearer ``w`` has a mounting
+    (:func:`jaxgaze.simulate.calibration.random_mounting`): eye centre
+    ``e_w`` and unit primary gaze direction ``v_w`` in the camera frame (+x
+    forward, +y left, +z up). The head *is* the camera and follows the gaze
+    fully, without lag (``κ = 1``; Park's gaze = head-fixed primary ray +
+    eye-in-head deviation): the actual gaze in the camera frame is
+    ``v'_t = unit(v_w + d₁ u₁ + d₂ u₂)``, ``d ~ N(0, h_w² I₂)`` (``h_w`` the
+    person's cone width), and the true camera rotation ``R_t`` (head to world)
+    maps ``v'_t`` onto ``unit(target_t − eye_t)``, keeping the camera upright
+    (camera +z in the vertical plane through the line of sight, as in
+    :mod:`jaxgaze.simulate.calibration`, step 4), then rolling by a smooth roll
+    of up to ``head_roll_deg`` about the line of sight. Where the wearer is
+    absent the line of sight is the head model's forward axis (step 6). The
+    camera centre is ``C_t = eye_t − R_t e_w``, so ``C_t + R_t e_w = eye_t``.
+    Reported (structure from motion): ``R_world_from_head = R_t · E``, ``E``
+    of i.i.d. ``N(0, (0.3°)²)`` per axis and frame, and ``camera_positions =
+    C_t + N(0, (1 cm)² I₃)``. A wearer's ``gaze_angles`` are ``(0, 0)`` where
+    present (NaN where absent), ``measurement_scale = 0``, and the truth is
+    ``bias = Φ⁻¹(v_w)`` and ``cone_width = h_w``: ``R Φ(g + b) = R v_w`` is
+    the primary ray, which deviates from the line of sight ``v* = R_t v'_t``
+    by ``atan ‖d‖ ≈ ‖d‖`` (Rayleigh with scale ``h_w``). ``eye_positions``
+    stay the true eye midpoints (what the others look at). Each wearer also
+    has a calibration session with a partner camera (Park Sec. 3.2,
+    :func:`jaxgaze.simulate.calibration.simulate_calibration_session` with the
+    wearer's mounting, ``eye_in_head = h_w``, ``calibration_frames`` frames at
+    the scene's fps and that module's default pose noise):
+    ``calibration_points`` holds the reported points of regard in the
+    wearer's camera frame, ``y = e_w + s v'`` up to pose noise. Non-wearers'
+    camera fields are NaN. All wearer randomness comes from
+    ``jax.random.fold_in(key, _WEARER_STREAM)`` (wearer ``w``: a further
+    ``fold_in(·, w)``), so every non-wearer output, and the random stream of
+    steps 1–9, is the same as with ``num_wearers = 0``.
+
 All randomness comes from the ``jax.random`` key (one ``jax.random.bits``
 draw seeds a NumPy generator): the same key gives the same scene. The
-sequential logic runs in NumPy (float64); nothing is compiled per scene.
+sequential logic runs in NumPy (float64); nothing is compiled per scene
+(except, with wearers, the calibration sessions, jitted once per
+``calibration_frames`` and fps).
 """
 
 from __future__ import annotations
@@ -104,6 +141,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgaze._checks import check_key
+from jaxgaze.simulate.calibration import random_mounting, simulate_calibration_session
 from jaxgaze.simulate.dyadic import _finite, _range
 
 __all__ = [
@@ -118,6 +156,12 @@ __all__ = [
 ELSEWHERE = -1
 _MAX_PEOPLE = 64
 _MAX_OBJECTS = 32
+_MAX_CALIBRATION_FRAMES = 100_000
+# Head-mounted cameras (step 10): the wearer stream is fold_in(key, _WEARER_STREAM)
+# ("WEAR"), and the structure-from-motion noise of the reported camera pose.
+_WEARER_STREAM = 0x57454152
+_SFM_ROTATION_DEG = 0.3
+_SFM_POSITION_M = 0.01
 
 
 class ConversationConfig(NamedTuple):
@@ -248,6 +292,16 @@ class Conversation(NamedTuple):
         standing: whether the scene is standing (else seated around a table).
         fps: frames per second.
         config: the :class:`ConversationConfig` used.
+        wearer: ``(P,)`` bool, who wears a head-mounted camera (the first ``num_wearers``; step 10).
+            For a wearer ``R_world_from_head`` is the reported camera rotation,
+            ``true_R_world_from_head`` the true one, ``gaze_angles`` are ``(0, 0)``,
+            ``bias = Φ⁻¹(v_w)`` (so ``R Φ(g + b)`` is the primary ray), ``head_fraction = 1``.
+        camera_positions: ``(T, P, 3)`` reported world camera centres ``C_t + N(0, (1 cm)²)``
+            (``C_t = eye_t − R_t e_w``); NaN for non-wearers.
+        eye_in_camera: ``(P, 3)`` true eye centre ``e_w`` in the camera frame (metres); NaN for non-wearers.
+        calibration_points: ``(P, M, 3)`` points of regard of each wearer's calibration session in
+            the wearer's camera frame (``M = calibration_frames``; ``M = 0`` without wearers); NaN
+            rows for non-wearers.
     """
 
     eye_positions: np.ndarray
@@ -269,6 +323,10 @@ class Conversation(NamedTuple):
     standing: bool
     fps: float
     config: ConversationConfig
+    wearer: np.ndarray
+    camera_positions: np.ndarray
+    eye_in_camera: np.ndarray
+    calibration_points: np.ndarray
 
     @property
     def num_frames(self) -> int:
@@ -624,6 +682,57 @@ def _focus(rng, config, T, P, K, fps, eyes, body_yaw, present, speaking, active)
     return target, points  # object points are filled in by the caller
 
 
+def _upright_frame(forward):
+    """Columns ``(f, left, up')``, ``left = unit(e_z × f)``, ``up' = f × left`` (as in calibration, NumPy)."""
+    f = _unit(forward)
+    left = _unit(np.cross(np.array([0.0, 0.0, 1.0]), f))
+    up = np.cross(f, left)
+    return np.stack([f, left, up], axis=-1)
+
+
+def _wearer(key, config, times, fps, cone, sight, calibration_frames):
+    """One head-mounted-camera wearer (step 10), from its own key.
+
+    ``sight (T, 3)``: unit world line of sight from the eye. Returns the eye centre
+    ``e (3,)`` and primary direction ``v (3,)`` in the camera frame, the gaze in the
+    camera frame ``v' (T, 3)``, the true and reported camera rotations ``(T, 3, 3)``
+    (camera to world), the reported-centre noise ``(T, 3)`` and the calibration
+    points of regard ``(M, 3)``.
+    """
+    deg = math.pi / 180
+    k_mount, k_calibration, k_noise = jax.random.split(key, 3)
+    mounting = random_mounting(k_mount)
+    eye = np.asarray(mounting.eye_center_in_camera, np.float64)
+    v = _unit(np.asarray(mounting.direction_in_camera, np.float64))
+    rng = _seed(k_noise)
+    T = times.size
+
+    # Actual gaze in the camera frame: v' = unit(v + d₁ u₁ + d₂ u₂), d ~ N(0, h² I₂).
+    basis = _upright_frame(v)  # columns (v, u₁, u₂), orthonormal
+    d = cone * rng.standard_normal((T, 2))
+    gaze = _unit(v + d[:, :1] * basis[:, 1] + d[:, 1:] * basis[:, 2])
+
+    # R maps v' onto the line of sight, upright, then rolls about it (leaving v' ↦ sight).
+    roll = config.head_roll_deg * deg * _smooth(rng, times, (), periods=(3.0, 12.0))
+    frame_cam = _upright_frame(gaze)
+    frame_world = _upright_frame(sight)
+    cos, sin = np.cos(roll)[:, None], np.sin(roll)[:, None]
+    left, up = frame_world[..., 1], frame_world[..., 2]
+    frame_world = np.stack([frame_world[..., 0], cos * left + sin * up, cos * up - sin * left], axis=-1)
+    R = np.einsum("tij,tkj->tik", frame_world, frame_cam)  # R_world_from_camera = F_world F_cameraᵀ
+
+    # Structure-from-motion noise of the reported pose.
+    err = _SFM_ROTATION_DEG * deg * rng.standard_normal((T, 3))
+    R_rep = R @ _head_pose_to_rotation(err[:, 0], err[:, 1], err[:, 2])
+    centre_noise = _SFM_POSITION_M * rng.standard_normal((T, 3))
+
+    session = simulate_calibration_session(
+        k_calibration, calibration_frames, mounting=mounting, eye_in_head=float(cone), fps=fps
+    )
+    points = np.asarray(session.points_of_regard_a(), np.float64)
+    return eye, v, gaze, R, R_rep, centre_noise, points
+
+
 # ---------------------------------------------------------------------------
 # Public API
 
@@ -643,6 +752,8 @@ def simulate_conversation(
     fps: float = 10.0,
     standing: bool | None = None,
     config: ConversationConfig | None = None,
+    num_wearers: int = 0,
+    calibration_frames: int = 100,
 ) -> Conversation:
     """Simulate one multi-party conversation with ground truth (see the module docstring).
 
@@ -655,13 +766,18 @@ def simulate_conversation(
         standing: standing in a circle (``True``) or seated at a table (``False``);
             ``None`` draws it with probability ``config.standing_prob``.
         config: a :class:`ConversationConfig` (default :func:`conversation_config`).
+        num_wearers: the first ``num_wearers`` people (``0 … P``) wear head-mounted cameras
+            (step 10 of the module docstring); 0 (the default) gives the plain scene, and
+            wearers change no non-wearer output.
+        calibration_frames: frames ``M ≥ 2`` of each wearer's calibration session.
 
     Returns:
         :class:`Conversation` with ``(T, P, ...)`` arrays.
 
     Raises:
         ValueError: naming the argument or config field, for a bad key, count,
-            timing, ``standing`` or configuration.
+            timing, ``standing``, ``num_wearers`` (also more than ``P``, drawn or given),
+            ``calibration_frames`` or configuration.
     """
     check_key(key)
     config = _check_config(ConversationConfig() if config is None else config)
@@ -669,6 +785,21 @@ def simulate_conversation(
         num_people = _check_count("num_people", num_people, 2, _MAX_PEOPLE)
     if num_objects is not None:
         num_objects = _check_count("num_objects", num_objects, 0, _MAX_OBJECTS)
+    if isinstance(num_wearers, bool) or not isinstance(num_wearers, (int, np.integer)) or not (
+        0 <= num_wearers <= (_MAX_PEOPLE if num_people is None else num_people)
+    ):
+        limit = _MAX_PEOPLE if num_people is None else f"num_people = {num_people}"
+        raise ValueError(f"num_wearers must be an integer in [0, {limit}], got {num_wearers!r}")
+    num_wearers = int(num_wearers)
+    if (
+        isinstance(calibration_frames, bool)
+        or not isinstance(calibration_frames, (int, np.integer))
+        or not 2 <= calibration_frames <= _MAX_CALIBRATION_FRAMES
+    ):
+        raise ValueError(
+            f"calibration_frames must be an integer in [2, {_MAX_CALIBRATION_FRAMES}], got {calibration_frames!r}"
+        )
+    calibration_frames = int(calibration_frames)
     if standing is not None and not isinstance(standing, (bool, np.bool_)):
         raise ValueError(f"standing must be True, False or None, got {standing!r}")
     T, fps = _check_timing(duration_s, fps)
@@ -682,6 +813,8 @@ def simulate_conversation(
     P = p_draw if num_people is None else num_people
     K = k_draw if num_objects is None else num_objects
     standing = s_draw if standing is None else bool(standing)
+    if num_wearers > P:
+        raise ValueError(f"num_wearers must be at most the number of people P = {P} (drawn), got {num_wearers}")
     times = np.arange(T) / fps
     duration = T / fps
 
@@ -738,6 +871,29 @@ def simulate_conversation(
     yaw, tilt = _direction_to_yaw_pitch(local)
     gaze = np.stack([_wrap(yaw - bias[:, 0]), tilt - bias[:, 1]], axis=-1)
 
+    # 10. Head-mounted cameras: a separate random stream, so nothing above changes.
+    wearer = np.arange(P) < num_wearers
+    camera_positions = np.full((T, P, 3), np.nan)
+    eye_in_camera = np.full((P, 3), np.nan)
+    calibration_points = np.full((P, calibration_frames if num_wearers else 0, 3), np.nan)
+    if num_wearers:
+        wearer_key = jax.random.fold_in(key, _WEARER_STREAM)
+        for w in range(num_wearers):
+            # Line of sight; where absent, the head model's forward axis.
+            line = np.where(present[:, w, None], sight[:, w], R_true[:, w, :, 0])
+            e, v, v_cam, R, R_cam, centre_noise, cal = _wearer(
+                jax.random.fold_in(wearer_key, w), config, times, fps, cone[w], line, calibration_frames
+            )
+            R_true[:, w], R_rep[:, w] = R, R_cam
+            v_true[:, w] = np.einsum("tij,tj->ti", R, v_cam)
+            gaze[:, w] = 0.0
+            scale[:, w] = 0.0
+            bias[w] = np.stack(_direction_to_yaw_pitch(v))
+            kappa[w] = 1.0
+            camera_positions[:, w] = eyes[:, w] - np.einsum("tij,j->ti", R, e) + centre_noise
+            eye_in_camera[w] = e
+            calibration_points[w] = cal
+
     absent = ~present
     gaze[absent] = np.nan
     v_true[absent] = np.nan
@@ -764,6 +920,10 @@ def simulate_conversation(
         standing=standing,
         fps=fps,
         config=config,
+        wearer=wearer,
+        camera_positions=camera_positions,
+        eye_in_camera=eye_in_camera,
+        calibration_points=calibration_points,
     )
 
 

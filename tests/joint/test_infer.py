@@ -132,3 +132,21 @@ def test_metrics_against_closed_forms():
     targets = nearest_target(directions / np.linalg.norm(directions, axis=-1, keepdims=True), eyes,
                              np.ones((1, 2), bool), np.zeros((1, 0, 3)), np.zeros((1, 0), bool))
     np.testing.assert_array_equal(targets, [[1, -1]])
+
+
+def test_head_mounted_calibration_is_inferred_with_the_recording():
+    from jaxgaze.simulate import conversation_config, simulate_conversation
+
+    scene = simulate_conversation(jax.random.key(3), num_people=4, num_objects=1, duration_s=30.0, fps=5.0,
+                                  num_wearers=2, config=conversation_config(cone_width_deg=(1.5, 2.5)))
+    cameras = np.where(scene.wearer[None, :, None], scene.camera_positions, scene.eye_positions)
+    data = joint_data(cameras, scene.R_world_from_head, scene.gaze_angles, present=scene.present,
+                      speaking=scene.speaking, measurement_scale=scene.measurement_scale, fps=scene.fps,
+                      calibration_points={"0": scene.calibration_points[0], "1": scene.calibration_points[1]})
+    assert data.wearers == (0, 1)
+    post = fit_joint(data, jax.random.key(0), num_warmup=200, num_samples=200)
+    joint_error = np.linalg.norm(post.samples["eye_offset"].mean(0) - scene.eye_in_camera[:2], axis=-1)
+    park_error = np.linalg.norm(post.start.eye_offset - scene.eye_in_camera[:2], axis=-1)
+    assert np.all(joint_error < 0.08) and np.all(joint_error < park_error)
+    assert np.median(_bias_error_deg(post.bias, scene.bias)) < 1.0
+    assert post.idata.posterior["eye_offset"].shape[-2:] == (2, 3)

@@ -287,3 +287,161 @@ def test_config():
         simulate_conversation(0)
     with pytest.raises(ValueError, match="num_scenes"):
         simulate_conversations(jax.random.key(0), 0)
+
+
+# ---------------------------------------------------------------------------
+# Head-mounted cameras (step 10)
+
+
+@pytest.fixture(scope="module")
+def worn():
+    """Two seated/standing scenes with 3 of 6 and 6 of 6 wearers."""
+    a = simulate_conversation(jax.random.key(0), num_people=6, num_objects=2, standing=False, num_wearers=3)
+    b = simulate_conversation(jax.random.key(1), num_people=6, standing=True, num_wearers=6, calibration_frames=150)
+    return a, b
+
+
+def test_no_wearers_unchanged(scene):
+    """``num_wearers = 0`` is the default and gives exactly the scene from before the option existed."""
+    zero = simulate_conversation(jax.random.key(0), num_people=6, num_objects=2, standing=False, num_wearers=0)
+    for name in Conversation._fields:
+        a, b = getattr(scene, name), getattr(zero, name)
+        if isinstance(a, np.ndarray):
+            np.testing.assert_array_equal(a, b, err_msg=name)
+    P = scene.num_people
+    assert not scene.wearer.any() and scene.wearer.shape == (P,) and scene.wearer.dtype == bool
+    assert scene.camera_positions.shape == (600, P, 3) and np.all(np.isnan(scene.camera_positions))
+    assert scene.eye_in_camera.shape == (P, 3) and np.all(np.isnan(scene.eye_in_camera))
+    assert scene.calibration_points.shape == (P, 0, 3)
+    # Weighted sums recorded before the head-mounted option was added (same key and arguments).
+    c = simulate_conversation(jax.random.key(3), duration_s=10.0)
+    assert (c.num_people, c.num_objects, c.standing, int(c.present.sum())) == (4, 2, True, 400)
+    expected = {
+        "eye_positions": 341390.84666156344,
+        "R_world_from_head": 570763.7156853767,
+        "gaze_angles": -16943.76632630048,
+        "target": 171257.0,
+        "target_positions": 284660.3321979551,
+        "bias": -0.3487334231817787,
+        "cone_width": 0.7212076463326433,
+    }
+    for name, value in expected.items():
+        x = np.asarray(getattr(c, name), np.float64)
+        weighted = np.nansum(x * np.arange(1, x.size + 1).reshape(x.shape))
+        assert weighted == pytest.approx(value, rel=1e-9, abs=1e-9), name
+
+
+def test_wearer_shapes_and_others_unchanged(worn, scene):
+    a, b = worn
+    for c, W, M in ((a, 3, 100), (b, 6, 150)):
+        T, P = c.num_frames, c.num_people
+        np.testing.assert_array_equal(c.wearer, np.arange(P) < W)
+        assert c.camera_positions.shape == (T, P, 3)
+        assert c.eye_in_camera.shape == (P, 3) and c.calibration_points.shape == (P, M, 3)
+        w = c.wearer
+        assert np.all(np.isfinite(c.camera_positions[:, w])) and np.all(np.isnan(c.camera_positions[:, ~w]))
+        assert np.all(np.isfinite(c.eye_in_camera[w])) and np.all(np.isnan(c.eye_in_camera[~w]))
+        assert np.all(np.isfinite(c.calibration_points[w])) and np.all(np.isnan(c.calibration_points[~w]))
+        for name in ("eye_positions", "R_world_from_head", "true_R_world_from_head", "measurement_scale"):
+            assert np.all(np.isfinite(getattr(c, name))), name
+        for R in (c.R_world_from_head, c.true_R_world_from_head):
+            np.testing.assert_allclose(np.swapaxes(R, -1, -2) @ R, np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
+            np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
+        # Mounting ranges (calibration.random_mounting): eyes below and behind the camera.
+        e = c.eye_in_camera[w]
+        assert np.all((e[:, 0] < -0.009) & (e[:, 0] > -0.041) & (e[:, 2] < -0.049) & (e[:, 2] > -0.101))
+        # The wearer has no eye tracker: zero gaze where present, NaN where absent; no measurement noise.
+        m = c.present[:, w]
+        assert np.all(c.gaze_angles[:, w][m] == 0) and np.all(np.isnan(c.gaze_angles[:, w][~m]))
+        assert np.all(c.measurement_scale[:, w] == 0)
+        assert np.all(c.head_fraction[w] == 1.0)
+        # The line of sight passes through the target.
+        u = _unit(c.target_positions - c.eye_positions)
+        np.testing.assert_allclose(c.true_gaze_directions[:, w][m], u[:, w][m], atol=1e-12)
+        # Upright camera: its +z stays near the world vertical.
+        assert np.min(c.true_R_world_from_head[:, w, 2, 2]) > 0.5
+    # Wearers change nothing for the others (the wearer stream is separate).
+    for name in ("eye_positions", "R_world_from_head", "true_R_world_from_head", "gaze_angles", "measurement_scale",
+                 "present", "speaking", "target", "target_positions", "true_gaze_directions"):
+        np.testing.assert_array_equal(getattr(a, name)[:, 3:], getattr(scene, name)[:, 3:], err_msg=name)
+    for name in ("bias", "cone_width", "head_fraction"):
+        np.testing.assert_array_equal(getattr(a, name)[3:], getattr(scene, name)[3:], err_msg=name)
+    np.testing.assert_array_equal(a.cone_width, scene.cone_width)  # h_w is the person's cone width
+    np.testing.assert_array_equal(a.object_positions, scene.object_positions)
+
+
+def test_wearer_primary_ray(worn):
+    """``R Φ(g + b) = R v_w`` is the primary ray; it misses the eye→target direction by ≈ Rayleigh(h_w)."""
+    ratios, reported = [], []
+    for c in worn:
+        w = c.wearer
+        m = c.present[:, w]
+        v = _phi(c.bias[w])  # (W, 3) primary direction in the camera frame
+        np.testing.assert_allclose(np.linalg.norm(v, axis=-1), 1.0, atol=1e-12)
+        g = np.where(m[..., None], c.gaze_angles[:, w], 0.0)
+        np.testing.assert_allclose(_phi(g + c.bias[w]), np.broadcast_to(v, g.shape[:-1] + (3,)), atol=1e-12)
+        u = _unit(c.target_positions - c.eye_positions)[:, w]
+        primary_true = np.einsum("twij,wj->twi", c.true_R_world_from_head[:, w], v)
+        ratios.append((_angle(primary_true, u) / c.cone_width[w])[m])
+        primary = np.einsum("twij,wj->twi", c.R_world_from_head[:, w], v)
+        reported.append((_angle(primary, u) / c.cone_width[w])[m])
+        # Structure-from-motion noise ≈ 0.3° per axis: forward axes differ by ~Rayleigh(0.3°).
+        err = _angle(c.R_world_from_head[:, w, :, 0], c.true_R_world_from_head[:, w, :, 0])
+        assert 0.25 * DEG < np.median(err) < 0.5 * DEG
+    ratios, reported = np.concatenate(ratios), np.concatenate(reported)
+    assert abs(np.median(ratios) - math.sqrt(2 * math.log(2))) < 0.06
+    assert np.mean(ratios**2) == pytest.approx(2.0, rel=0.12)
+    assert abs(np.median(reported) - math.sqrt(2 * math.log(2))) < 0.1
+
+
+def test_camera_centres(worn, monkeypatch):
+    """``C + R e = eye``: exactly without pose noise, with N(0, 1 cm²) noise on the reported centre."""
+    for c in worn:
+        w = c.wearer
+        eye_true = np.einsum("twij,wj->twi", c.true_R_world_from_head[:, w], c.eye_in_camera[w])
+        residual = c.camera_positions[:, w] + eye_true - c.eye_positions[:, w]
+        assert abs(np.std(residual) - 0.01) < 0.001 and abs(np.mean(residual)) < 0.001
+        eye_rep = np.einsum("twij,wj->twi", c.R_world_from_head[:, w], c.eye_in_camera[w])
+        assert np.median(np.linalg.norm(c.camera_positions[:, w] + eye_rep - c.eye_positions[:, w], axis=-1)) < 0.025
+    import jaxgaze.simulate.conversation as conversation
+
+    monkeypatch.setattr(conversation, "_SFM_POSITION_M", 0.0)
+    monkeypatch.setattr(conversation, "_SFM_ROTATION_DEG", 0.0)
+    c = simulate_conversation(jax.random.key(0), num_people=6, num_objects=2, standing=False, num_wearers=3)
+    a = worn[0]
+    np.testing.assert_array_equal(c.true_R_world_from_head, a.true_R_world_from_head)
+    np.testing.assert_allclose(c.R_world_from_head[:, :3], c.true_R_world_from_head[:, :3], atol=1e-15)
+    w = c.wearer
+    eye = c.camera_positions[:, w] + np.einsum("twij,wj->twi", c.R_world_from_head[:, w], c.eye_in_camera[w])
+    np.testing.assert_allclose(eye, c.eye_positions[:, w], atol=1e-12)
+
+
+def test_calibration_points(worn):
+    """Points of regard in the camera frame lie around the primary ray (e_w, v_w): angle / h ≈ Rayleigh."""
+    ratios = []
+    for c in worn:
+        for i in np.flatnonzero(c.wearer):
+            y = c.calibration_points[i] - c.eye_in_camera[i]
+            ratios.append(_angle(y, np.broadcast_to(_phi(c.bias[i]), y.shape)) / c.cone_width[i])
+            dist = np.linalg.norm(c.calibration_points[i], axis=-1)
+            assert dist.min() > 0.3 and dist.max() < 6.0  # the partner is metres away
+    ratios = np.concatenate(ratios)
+    assert ratios.size == 3 * 100 + 6 * 150
+    assert abs(np.median(ratios) - math.sqrt(2 * math.log(2))) < 0.1
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        (dict(num_people=4, num_wearers=-1), "num_wearers"),
+        (dict(num_people=4, num_wearers=5), "num_wearers"),
+        (dict(num_wearers=9), "num_wearers"),  # more than any drawn P (3–8)
+        (dict(num_people=4, num_wearers=1.0), "num_wearers"),
+        (dict(num_people=4, num_wearers=True), "num_wearers"),
+        (dict(num_people=4, num_wearers=1, calibration_frames=1), "calibration_frames"),
+        (dict(num_people=4, calibration_frames=2.5), "calibration_frames"),
+    ],
+)
+def test_bad_wearer_arguments(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        simulate_conversation(jax.random.key(0), duration_s=2.0, **kwargs)
