@@ -89,8 +89,13 @@ def faces(seed: int, num_faces: int, **options) -> simulate.SimulatedFaces:
 
 
 @functools.cache
-def conversation(num_people: int = 3, num_objects: int = 1, duration_s: float = 30.0, fps: float = 5.0,
-                 seed: int = 0) -> simulate.Conversation:
-    """A group conversation with speaking turns, shared objects and known biases (the joint model's scene)."""
-    return simulate.simulate_conversation(jax.random.key(seed), num_people=num_people, num_objects=num_objects,
-                                          duration_s=duration_s, fps=fps)
+def conversation(num_people: int = 4, num_objects: int = 1, duration_s: float = 30.0, fps: float = 5.0,
+                 num_wearers: int = 2, seed: int = 3) -> simulate.Conversation:
+    """A group conversation with speaking turns, shared objects and known biases (the joint model's scene).
+
+    The first ``num_wearers`` people wear head-mounted cameras with calibration sessions; cone
+    widths of 1.5–2.5° keep Park's calibration walk informative at this size.
+    """
+    return simulate.simulate_conversation(
+        jax.random.key(seed), num_people=num_people, num_objects=num_objects, duration_s=duration_s, fps=fps,
+        num_wearers=num_wearers, config=simulate.conversation_config(cone_width_deg=(1.5, 2.5)))

@@ -292,15 +292,18 @@ def _diagnostics(idata, diverging: np.ndarray) -> dict:
         rhat = az.rhat(split)
         bulk = az.ess(posterior, method="bulk")
         tail = az.ess(posterior, method="tail")
-    worst = lambda ds, f: float(f([float(f(ds[v].values)) for v in ds.data_vars]))  # noqa: E731
-    return {"max_rhat": worst(rhat, np.nanmax), "min_ess_bulk": worst(bulk, np.nanmin),
-            "min_ess_tail": worst(tail, np.nanmin), "divergences": int(np.sum(diverging)),
+
+    def worst(ds, pick):  # NaN (a site that never moved) wins: it must fail the checks
+        values = np.concatenate([np.ravel(ds[v].values) for v in ds.data_vars])
+        return math.nan if np.isnan(values).any() else float(pick(values))
+
+    return {"max_rhat": worst(rhat, np.max), "min_ess_bulk": worst(bulk, np.min),
+            "min_ess_tail": worst(tail, np.min), "divergences": int(np.sum(diverging)),
             "draws": int(diverging.size)}
 
 
 def _verdict(diagnostics: dict) -> RESULTS:
-    if not all(math.isfinite(diagnostics[k]) for k in ("max_rhat", "min_ess_bulk", "min_ess_tail")):
-        return RESULTS.nonfinite
+    """``not_mixed`` unless every check passes; a NaN r-hat or ESS (a chain that never moved) fails."""
     mixed = (diagnostics["max_rhat"] <= MAX_RHAT and diagnostics["min_ess_bulk"] >= MIN_ESS
              and diagnostics["min_ess_tail"] >= MIN_ESS
              and diagnostics["divergences"] <= MAX_DIVERGENT_SHARE * diagnostics["draws"])
