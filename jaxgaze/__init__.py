@@ -12,6 +12,7 @@ Each model family has a subpackage with one door (its ``__init__``):
 | gaze from head pose | Yücel et al. 2013, Sec. V | :mod:`jaxgaze.headpose` |
 | attended object in images | Yücel et al. 2013, Sec. VI–VII | :mod:`jaxgaze.vision` |
 | head orientation from facial features | ROVIS, "Human–Robot Interaction Through Robust Gaze Following" | :mod:`jaxgaze.facial` |
+| joint inference of a group recording | Park et al. 2012 with Siegfried et al. 2017 | :mod:`jaxgaze.joint` |
 
 Around them: :mod:`jaxgaze.geometry` (frames, rotations, angles), :mod:`jaxgaze.poses`
 (camera trajectories), :mod:`jaxgaze.simulate` (every simulator), :mod:`jaxgaze.io`
@@ -27,7 +28,7 @@ frames, metres, radians inside (degrees only in names ending ``_deg``).
 
 import importlib
 
-from jaxgaze import bias, calibration, concurrence, cone, geometry, gp, headpose, poses, rays, results
+from jaxgaze import bias, calibration, concurrence, cone, geometry, gp, headpose, joint, poses, rays, results
 from jaxgaze.rays import GazeRays
 from jaxgaze.results import RESULTS, FitError
 from jaxgaze.cone import (
@@ -68,6 +69,7 @@ from jaxgaze.bias import (
     update_bias,
 )
 from jaxgaze.headpose import GazeRegression, fit_gaze_regression, fit_gaze_regression_nn
+from jaxgaze.joint import JointPosterior, fit_joint, joint_data
 
 __version__ = "0.1.0"
 
@@ -127,6 +129,11 @@ __all__ = [
     "BiasEstimate",
     "estimate_bias",
     "update_bias",
+    # joint inference
+    "joint",
+    "joint_data",
+    "fit_joint",
+    "JointPosterior",
     # gaze from head pose
     "gp",
     "headpose",

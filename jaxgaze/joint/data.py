@@ -165,10 +165,10 @@ def joint_data(
             and ``R_world_from_head`` the camera rotations (see :class:`JointData`).
 
     Raises:
-        ValueError: naming the array, frame and person for inconsistent shapes, NaN
-        where a person is present, a person never present, flags for an unknown
-        person, a rotation that is not one, or implausible units (degrees for
-        angles, millimetres for positions).
+        ValueError: naming the array, frame and person, for inconsistent shapes, NaN
+            where a person is present, a person never present, flags for an unknown
+            person, a rotation that is not one, or implausible units (degrees for
+            angles, millimetres for positions).
     """
     gaze = np.asarray(gaze_angles, dtype=float)
     if gaze.ndim != 3 or gaze.shape[-1] != 2:
