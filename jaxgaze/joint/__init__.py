@@ -14,7 +14,6 @@ the shared gaze concurrences, inferred together with calibrated posteriors.
 
 from jaxgaze.joint.data import JointData, joint_data
 from jaxgaze.joint.model import (
-    ELSEWHERE_LOG_DENSITY,
     JointPrior,
     ModelArrays,
     candidate_log_probabilities,
@@ -36,7 +35,6 @@ from jaxgaze.joint.metrics import expected_calibration_error, nearest_target, ra
 __all__ = [
     "JointData",
     "joint_data",
-    "ELSEWHERE_LOG_DENSITY",
     "JointPrior",
     "ModelArrays",
     "candidate_log_probabilities",

@@ -108,7 +108,7 @@ def _probabilities(draws: dict, arrays: ModelArrays, prior: JointPrior):
     T, P = arrays.present.shape
 
     def one(carry, draw):
-        lp = candidate_log_probabilities(_params(draw, arrays.location_centres, prior), arrays)
+        lp = candidate_log_probabilities(_params(draw, arrays.location_centres, prior), arrays, prior)
         p = jnp.exp(lp - logsumexp(lp, axis=-1, keepdims=True))
         people = p[..., :P]
         return (carry[0] + p, carry[1] + people * jnp.swapaxes(people, 1, 2)), None
@@ -134,7 +134,7 @@ def _predictive(key, draws: dict, arrays: ModelArrays, prior: JointPrior):
 
     def one(key, draw):
         params = _params(draw, arrays.location_centres, prior)
-        lp = candidate_log_probabilities(params, arrays)
+        lp = candidate_log_probabilities(params, arrays, prior)
         k1, k2 = jax.random.split(key)
         z = jax.random.categorical(k1, lp, axis=-1)  # (T, P)
         eyes = eye_positions(params, arrays)

@@ -7,7 +7,9 @@ The person looks at one target ``z_ti``, chosen among
 * the other people present (their eye midpoints, known),
 * ``K`` free concurrences, latent 3D points shared by several people, piecewise
   constant over windows,
-* "elsewhere", uniform on the sphere.
+* "elsewhere": a broad cone of fixed spread ``σ_e`` around the head's forward
+  direction (people glance away mostly ahead of the head; a uniform sphere makes a
+  glance just off a target look like a wide cone and inflates ``h``).
 
 The prior on the target depends on who speaks: ``logit P(z = j) = α_person + β·s_tj``
 for a person ``j`` (``s`` = 1 while ``j`` speaks), ``α_object`` for a concurrence and
@@ -38,12 +40,8 @@ from jaxgaze.calibration import calibration_log_likelihood
 from jaxgaze.cone import cone_direction_log_density
 from jaxgaze.geometry import unit
 
-__all__ = ["ELSEWHERE_LOG_DENSITY", "JointPrior", "ModelArrays", "joint_model", "candidate_log_probabilities", "marginal_log_likelihood",
+__all__ = ["JointPrior", "ModelArrays", "joint_model", "candidate_log_probabilities", "marginal_log_likelihood",
            "concurrence_locations", "eye_positions"]
-
-
-#: Log density (per steradian) of a glance "elsewhere": uniform on the sphere.
-ELSEWHERE_LOG_DENSITY = -math.log(4.0 * math.pi)
 
 
 class JointPrior(NamedTuple):
@@ -60,6 +58,8 @@ class JointPrior(NamedTuple):
         window_drift: sd (m) of a concurrence's per-window move around its own centre.
         eye_offset_scale: sd (m) of a wearer's eye centre in the camera frame (Park et al.
             2012, Sec. 3.2, as in :func:`~jaxgaze.calibration.calibration_model`).
+        elsewhere_spread: the spread (radians) of glances elsewhere around the head's
+            forward direction, a Fisher cone with ``κ = 1/σ_e²``.
     """
 
     bias_scale: float = 0.25
@@ -71,6 +71,7 @@ class JointPrior(NamedTuple):
     location_scale: float = 0.5
     window_drift: float = 0.1
     eye_offset_scale: float = 0.2
+    elsewhere_spread: float = 0.6
 
 
 class ModelArrays(NamedTuple):
@@ -118,7 +119,7 @@ def _to_people_head(eyes, R):
     return jnp.einsum("tiab,tija->tijb", R, toward)  # R_head_from_world = Rᵀ
 
 
-def _parts(params: dict, arrays: ModelArrays):
+def _parts(params: dict, arrays: ModelArrays, prior: JointPrior):
     """Per candidate group (people, concurrences): the prior logits, the log likelihoods and the validity masks."""
     _, R, gaze, present, speaking, scale, window, to_people_head = arrays[:8]
     eyes = eye_positions(params, arrays)
@@ -137,7 +138,8 @@ def _parts(params: dict, arrays: ModelArrays):
         slot_lik = cone_direction_log_density(jnp.einsum("tik,tijk->tij", directions, to_slots), width)
     else:
         slot_lik = jnp.zeros((T, P, 0), directions_head.dtype)
-    elsewhere = jnp.full((T, P), ELSEWHERE_LOG_DENSITY, directions_head.dtype)
+    forward = directions_head[..., 0]  # cosine to the head's +x
+    elsewhere = cone_direction_log_density(forward, jnp.asarray(prior.elsewhere_spread, forward.dtype))
     return people_logit, people_lik, others, slot_lik, elsewhere
 
 
@@ -149,7 +151,8 @@ def _log_normaliser(people_logit, num_slots: int, alpha_object):
     return logsumexp(jnp.stack(terms), axis=0)
 
 
-def candidate_log_probabilities(params: dict, arrays: ModelArrays) -> Float[Array, "T P C"]:
+def candidate_log_probabilities(params: dict, arrays: ModelArrays, prior: JointPrior = JointPrior()
+                                ) -> Float[Array, "T P C"]:
     """``log P(z_ti = j) + log p(g_ti | z_ti = j)`` for every candidate ``j`` (Park et al. 2012, eq. 3; Siegfried et al. 2017, Sec. 3.2).
 
     ``params`` holds ``bias (P, 2)``, ``cone_width (P,)``, ``alpha_person``,
@@ -157,7 +160,7 @@ def candidate_log_probabilities(params: dict, arrays: ModelArrays) -> Float[Arra
     candidates (oneself, an absent person) are ``−inf``. Rows of absent gazers are
     meaningless; the caller masks them.
     """
-    people_logit, people_lik, others, slot_lik, elsewhere = _parts(params, arrays)
+    people_logit, people_lik, others, slot_lik, elsewhere = _parts(params, arrays, prior)
     K = slot_lik.shape[-1]
     log_z = _log_normaliser(people_logit, K, params["alpha_object"])[..., None]
     people = jnp.where(others, people_logit + people_lik, -jnp.inf)
@@ -165,12 +168,13 @@ def candidate_log_probabilities(params: dict, arrays: ModelArrays) -> Float[Arra
     return jnp.concatenate([people, slots, elsewhere[..., None]], axis=-1) - log_z
 
 
-def marginal_log_likelihood(params: dict, arrays: ModelArrays) -> Float[Array, "T P"]:
+def marginal_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior = JointPrior()
+                            ) -> Float[Array, "T P"]:
     """``log p(g_ti) = log Σ_j P(z_ti = j) p(g_ti | j)``, the target summed out (0 where absent).
 
     The same sum as ``logsumexp`` of :func:`candidate_log_probabilities`, by groups.
     """
-    people_logit, people_lik, others, slot_lik, elsewhere = _parts(params, arrays)
+    people_logit, people_lik, others, slot_lik, elsewhere = _parts(params, arrays, prior)
     K = slot_lik.shape[-1]
     terms = [logsumexp(jnp.where(others, people_logit + people_lik, -jnp.inf), axis=-1), elsewhere]
     if K:
@@ -246,4 +250,4 @@ def joint_model(
     with numpyro.plate("frames", T, subsample_size=frames_per_step) as frames:
         if frames_per_step is not None:
             arrays = ModelArrays(*(a[frames] for a in arrays[:8]), *arrays[8:])
-        numpyro.factor("gaze", jnp.sum(marginal_log_likelihood(params, arrays), axis=-1))
+        numpyro.factor("gaze", jnp.sum(marginal_log_likelihood(params, arrays, prior), axis=-1))

@@ -62,7 +62,7 @@ def _brute_force(data, params):
                 u = params["locations"][0, k] - data.eye_positions[t, i]
                 liks[P + k] = log_fisher(world @ u / np.linalg.norm(u), h)
             logits["e"] = 0.0
-            liks["e"] = -math.log(4 * math.pi)
+            liks["e"] = log_fisher(head[0], JointPrior().elsewhere_spread)  # around the head's +x
             norm = math.log(sum(math.exp(v) for v in logits.values()))
             per_gazer.append({c: logits[c] - norm + liks[c] for c in logits})
     total = -math.inf
