@@ -77,8 +77,9 @@ def test_marginal_matches_brute_force_enumeration(x64):
     arrays = _arrays(data, centres, jnp.float64)
     jparams = jax.tree_util.tree_map(jnp.asarray, params)
     expected, per_gazer = _brute_force(data, params)
-    assert float(jnp.sum(marginal_log_likelihood(jparams, arrays))) == pytest.approx(expected, rel=1e-10, abs=1e-9)
-    lp = np.asarray(candidate_log_probabilities(jparams, arrays))
+    assert float(jnp.sum(jax.jit(marginal_log_likelihood)(jparams, arrays))) == pytest.approx(expected, rel=1e-10,
+                                                                                               abs=1e-9)
+    lp = np.asarray(jax.jit(candidate_log_probabilities)(jparams, arrays))
     assert float(np.sum(jax.scipy.special.logsumexp(lp, axis=-1))) == pytest.approx(expected, rel=1e-10)
     # one gazer's candidates, order: people, concurrences, elsewhere
     g = per_gazer[1]  # frame 0, person 1
@@ -103,9 +104,9 @@ def test_absent_people_are_no_candidates_and_add_nothing(x64):
                         speaking=data.speaking, measurement_scale=data.measurement_scale, fps=5.0)
     arrays = _arrays(masked, centres, jnp.float64)
     jparams = jax.tree_util.tree_map(jnp.asarray, params)
-    lp = np.asarray(candidate_log_probabilities(jparams, arrays))
+    lp = np.asarray(jax.jit(candidate_log_probabilities)(jparams, arrays))
     assert np.all(lp[0, [0, 1, 3], 2] == -np.inf)  # nobody looks at the absent person
-    ll = np.asarray(marginal_log_likelihood(jparams, arrays))
+    ll = np.asarray(jax.jit(marginal_log_likelihood)(jparams, arrays))
     assert ll[0, 2] == 0.0 and np.all(np.isfinite(ll))
 
 
@@ -115,8 +116,8 @@ def test_gradients_match_finite_differences(x64):
     rng = np.random.default_rng(3)
     u = {"bias": jnp.asarray(0.1 * rng.normal(size=(3, 2))), "cone_width": jnp.asarray(np.log([0.05, 0.08, 0.1])),
          "alpha_person": jnp.asarray(0.2), "alpha_object": jnp.asarray(-0.1), "speaker_effect": jnp.asarray(1.7), "concurrence_offset": jnp.asarray(0.1 * rng.normal(size=(1, 3)))}
-    energy = lambda z: potential_energy(joint_model, arrays, {}, z)  # noqa: E731
-    grad = jax.grad(energy)(u)
+    energy = jax.jit(lambda z: potential_energy(joint_model, arrays, {}, z))
+    grad = jax.jit(jax.grad(energy))(u)
     flat, unravel = jax.flatten_util.ravel_pytree(u)
     g, _ = jax.flatten_util.ravel_pytree(grad)
     eps = 1e-6
