@@ -394,19 +394,13 @@ def fit_joint(
                                    dense_mass=True, progress_bar=progress, description="joint NUTS")
         draws = {k: np.asarray(v) for k, v in draws.items()}
         stats = {k: np.asarray(v) for k, v in stats.items()}
-        extra = {}
-    else:
-        draws, stats, extra = _svi(data, arrays, values, prior, k_fit, k_draws, int(num_steps), int(frames_per_step),
-                                   float(learning_rate), int(num_samples), progress)
-
-    idata = _inference_data({k: v for k, v in draws.items()}, stats, data, K)
-    if method == "nuts":
+        idata = _inference_data(draws, stats, data, K)
         diagnostics = _diagnostics(idata, stats["diverging"])
         result = _verdict(diagnostics)
     else:
-        diagnostics = {"draws": int(num_samples), **extra}
-        result = extra.pop("result")
-        diagnostics.pop("result", None)
+        draws, result, diagnostics = _svi(data, arrays, values, prior, k_fit, k_draws, int(num_steps),
+                                          int(frames_per_step), float(learning_rate), int(num_samples), progress)
+        idata = _inference_data(draws, None, data, K)
     flat = {k: v.reshape((-1,) + v.shape[2:]) for k, v in draws.items()}
     if not all(np.all(np.isfinite(v)) for v in flat.values()):
         result = RESULTS.nonfinite
@@ -477,4 +471,5 @@ def _svi(data, arrays, values, prior, key, key_draws, num_steps, frames_per_step
         latent["concurrence_locations"] = np.asarray(
             jax.vmap(lambda d: concurrence_locations(d, centres, prior))(
                 {k: jnp.asarray(v[0]) for k, v in latent.items()}))[None]
-    return latent, None, {"result": result, "elbo_change": change, "elbo_noise": noise, "final_loss": float(last.mean())}
+    return latent, result, {"elbo_change": change, "elbo_noise": noise, "final_loss": float(last.mean()),
+                            "draws": int(num_samples)}
