@@ -355,7 +355,10 @@ def fit_joint(
         key: a ``jax.random`` key (the start's frame draw, the sampler, the checks).
         method: ``"nuts"`` (exact; a window of a minute or two) or ``"svi"`` (a
             mean-field normal posterior, frames subsampled ``frames_per_step`` at a
-            time for ``num_steps`` Adam steps at ``learning_rate``; long recordings).
+            time for ``num_steps`` Adam steps at ``learning_rate``; long recordings). A
+            mean-field posterior ignores correlations, so its intervals are narrower
+            than NUTS's: use it for point estimates and memberships, NUTS on a window
+            for intervals.
         num_warmup, num_samples, num_chains: NUTS settings (``num_samples`` draws are
             also taken from the SVI posterior).
         prior: a :class:`JointPrior`.
