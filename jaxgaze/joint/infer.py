@@ -24,7 +24,7 @@ from numpyro.infer import SVI, Predictive, Trace_ELBO
 
 from jaxgaze.bias import gaze_angles_to_direction, head_to_world
 from jaxgaze.cone import sample_gaze_directions
-from jaxgaze.geometry import angle_between
+from jaxgaze.geometry import angle_between, unit
 from jaxgaze.joint.data import JointData
 from jaxgaze.joint.init import JointStart, directions_to_people, joint_start
 from jaxgaze.joint.model import (JointPrior, ModelArrays, candidate_log_probabilities, concurrence_locations,
@@ -105,38 +105,25 @@ def _params(draw: dict, centres, prior: JointPrior) -> dict:
 
 
 @functools.partial(jax.jit, static_argnames=("prior",))
-def _probabilities(draws: dict, arrays: ModelArrays, prior: JointPrior):
-    """Mean membership ``P(z_ti = j)`` and mutual ``E[p_ij p_ji]`` over the draws (one draw at a time)."""
-    T, P = arrays.present.shape
+def _posterior_summaries(key, draws: dict, arrays: ModelArrays, prior: JointPrior):
+    """One pass over the draws: mean membership ``P(z_ti = j)``, mutual ``E[p_ij p_ji]`` and the predictive check.
 
-    def one(carry, draw):
-        lp = candidate_log_probabilities(_params(draw, arrays.location_centres, prior), arrays, prior)
-        p = jnp.exp(lp - logsumexp(lp, axis=-1, keepdims=True))
-        people = p[..., :P]
-        return (carry[0] + p, carry[1] + people * jnp.swapaxes(people, 1, 2)), None
-
-    C = P + arrays.location_centres.shape[1] + 1
-    zero = (jnp.zeros((T, P, C), arrays.gaze_angles.dtype), jnp.zeros((T, P, P), arrays.gaze_angles.dtype))
-    (total, mutual), _ = jax.lax.scan(one, zero, draws)
-    n = jax.tree_util.tree_leaves(draws)[0].shape[0]
-    mask = arrays.present[..., None]
-    return jnp.where(mask, total / n, 0.0), jnp.where(mask, mutual / n, 0.0)
-
-
-@functools.partial(jax.jit, static_argnames=("prior",))
-def _predictive(key, draws: dict, arrays: ModelArrays, prior: JointPrior):
-    """Posterior predictive angular residuals, per person: observed and replicated mean ``angle / width``.
-
-    For each draw a target is drawn for every gaze from its posterior membership;
-    the observed residual is the angle between the corrected gaze and the direction
-    to that target, the replicated one the angle of a direction drawn from the cone
-    around it. Glances elsewhere have no direction to compare and are left out.
+    The check, per person: for each draw a target is drawn for every gaze from its
+    membership; the observed residual is the angle between the corrected gaze and
+    the direction to that target, the replicated one the angle of a direction drawn
+    from the cone around it (both over the width, then averaged). Glances elsewhere
+    have no direction to compare and are left out.
     """
     T, P = arrays.present.shape
 
-    def one(key, draw):
+    def one(carry, key_and_draw):
+        key, draw = key_and_draw
         params = _params(draw, arrays.location_centres, prior)
         lp = candidate_log_probabilities(params, arrays, prior)
+        p = jnp.exp(lp - logsumexp(lp, axis=-1, keepdims=True))
+        people = p[..., :P]
+        carry = (carry[0] + p, carry[1] + people * jnp.swapaxes(people, 1, 2))
+
         k1, k2 = jax.random.split(key)
         z = jax.random.categorical(k1, lp, axis=-1)  # (T, P)
         eyes = eye_positions(params, arrays)
@@ -144,21 +131,22 @@ def _predictive(key, draws: dict, arrays: ModelArrays, prior: JointPrior):
                                    jnp.broadcast_to(params["locations"][arrays.window][:, None],
                                                     (T, P) + params["locations"].shape[1:])], axis=2)
         chosen = jnp.take_along_axis(targets, jnp.minimum(z, targets.shape[2] - 1)[..., None, None], axis=2)[:, :, 0]
-        u = chosen - eyes
-        u = u / jnp.linalg.norm(u, axis=-1, keepdims=True).clip(1e-9)
+        u = unit(chosen - eyes)
         d = head_to_world(gaze_angles_to_direction(arrays.gaze_angles + params["bias"]), arrays.R_world_from_head)
         width = jnp.sqrt(jnp.square(params["cone_width"])[None] + jnp.square(arrays.measurement_scale))
         replicated = sample_gaze_directions(k2, GazeRays(eyes.reshape(-1, 3), u.reshape(-1, 3), width.reshape(-1)))
         use = arrays.present & (z < targets.shape[2])
-        observed = angle_between(d, u) / width
-        rep = angle_between(replicated.reshape(T, P, 3), u) / width
         count = jnp.maximum(jnp.sum(use, axis=0), 1)
-        return (jnp.sum(jnp.where(use, observed, 0.0), axis=0) / count,
-                jnp.sum(jnp.where(use, rep, 0.0), axis=0) / count)
+        mean = lambda r: jnp.sum(jnp.where(use, r / width, 0.0), axis=0) / count  # noqa: E731
+        return carry, (mean(angle_between(d, u)), mean(angle_between(replicated.reshape(T, P, 3), u)))
 
     n = jax.tree_util.tree_leaves(draws)[0].shape[0]
-    keys = jax.random.split(key, n)
-    return jax.lax.map(lambda a: one(*a), (keys, draws))
+    C = P + arrays.location_centres.shape[1] + 1
+    dtype = arrays.gaze_angles.dtype
+    zero = (jnp.zeros((T, P, C), dtype), jnp.zeros((T, P, P), dtype))
+    (total, mutual), (observed, replicated) = jax.lax.scan(one, zero, (jax.random.split(key, n), draws))
+    mask = arrays.present[..., None]
+    return jnp.where(mask, total / n, 0.0), jnp.where(mask, mutual / n, 0.0), observed, replicated
 
 
 class JointPosterior(NamedTuple):
@@ -409,8 +397,8 @@ def fit_joint(
         result = RESULTS.nonfinite
     pick = np.linspace(0, flat["bias"].shape[0] - 1, min(_MAX_PROBABILITY_DRAWS, flat["bias"].shape[0])).astype(int)
     latent = {k: jnp.asarray(v[pick], dtype) for k, v in flat.items() if k != "concurrence_locations"}
-    membership, mutual = (np.asarray(a) for a in _probabilities(latent, arrays, prior))
-    observed, replicated = (np.asarray(a) for a in _predictive(k_check, latent, arrays, prior))
+    membership, mutual, observed, replicated = (np.asarray(a) for a in
+                                                _posterior_summaries(k_check, latent, arrays, prior))
     check = {"observed": observed.mean(axis=0), "replicated": replicated,
              "p_value": (replicated >= observed).mean(axis=0)}
     posterior = JointPosterior(idata, result, diagnostics, method, data.people, data.fps, membership, mutual, flat,

@@ -142,7 +142,7 @@ import numpy as np
 
 from jaxgaze._checks import check_key
 from jaxgaze.simulate.calibration import random_mounting, simulate_calibration_session
-from jaxgaze.simulate.dyadic import _finite, _range
+from jaxgaze.simulate.dyadic import _check_timing, _finite, _range
 
 __all__ = [
     "ELSEWHERE",
@@ -446,20 +446,6 @@ def _check_count(name, value, lo, hi):
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
         raise ValueError(f"{name} must be an integer in [{lo}, {hi}] or None, got {value!r}")
     return int(value)
-
-
-def _check_timing(duration_s, fps) -> tuple[int, float]:
-    fps = _finite("fps", fps, lo=0.0, lo_open=True)
-    duration_s = _finite("duration_s", duration_s, lo=0.0, lo_open=True)
-    num_frames = int(round(duration_s * fps))
-    if num_frames < 2:
-        raise ValueError(
-            f"duration_s · fps must give at least 2 frames, got duration_s={duration_s!r}, fps={fps!r} "
-            f"({num_frames} frames)"
-        )
-    if num_frames > 1_000_000:
-        raise ValueError(f"duration_s · fps gives {num_frames} frames; at most 1,000,000 per scene")
-    return num_frames, fps
 
 
 # ---------------------------------------------------------------------------
@@ -802,7 +788,7 @@ def simulate_conversation(
     calibration_frames = int(calibration_frames)
     if standing is not None and not isinstance(standing, (bool, np.bool_)):
         raise ValueError(f"standing must be True, False or None, got {standing!r}")
-    T, fps = _check_timing(duration_s, fps)
+    T, fps = _check_timing(duration_s, fps, max_frames=1_000_000)
     rng = _seed(key)
     deg = math.pi / 180
 

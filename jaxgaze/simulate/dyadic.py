@@ -408,7 +408,7 @@ def _resolve(preset) -> DyadicConfig:
     raise ValueError(f"preset must be a preset name {PRESETS} or a DyadicConfig, got {type(preset).__name__}")
 
 
-def _check_timing(duration_s, fps) -> tuple[int, float]:
+def _check_timing(duration_s, fps, max_frames: int = 10_000_000) -> tuple[int, float]:
     fps = _finite("fps", fps, lo=0.0, lo_open=True)
     duration_s = _finite("duration_s", duration_s, lo=0.0, lo_open=True)
     num_frames = int(round(duration_s * fps))
@@ -417,8 +417,8 @@ def _check_timing(duration_s, fps) -> tuple[int, float]:
             f"duration_s · fps must give at least 2 frames, got duration_s={duration_s!r}, fps={fps!r} "
             f"({num_frames} frames)"
         )
-    if num_frames > 10_000_000:
-        raise ValueError(f"duration_s · fps gives {num_frames} frames; at most 10,000,000 per session")
+    if num_frames > max_frames:
+        raise ValueError(f"duration_s · fps gives {num_frames} frames; at most {max_frames:,} per recording")
     return num_frames, fps
 
 
