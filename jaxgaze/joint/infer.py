@@ -265,12 +265,11 @@ class JointPosterior(NamedTuple):
 
 def _split_chains(posterior):
     """A single chain split into halves, for split r-hat (arviz needs two chains)."""
-    import xarray as xr
+    import arviz as az
 
     n = posterior.sizes["draw"] // 2
-    first = posterior.isel(chain=[0], draw=slice(0, n))
-    second = posterior.isel(chain=[0], draw=slice(n, 2 * n)).assign_coords(draw=first.draw, chain=[1])
-    return xr.concat([first, second], dim="chain")
+    halves = {v: posterior[v].values[0, : 2 * n].reshape((2, n) + posterior[v].shape[2:]) for v in posterior.data_vars}
+    return az.convert_to_dataset(halves)
 
 
 def _diagnostics(idata, diverging: np.ndarray) -> dict:
