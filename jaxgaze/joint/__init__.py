@@ -6,7 +6,7 @@ the shared gaze concurrences, inferred together with calibrated posteriors.
 | equation or section | function | file |
 |---|---|---|
 | Siegfried Sec. 2, Park Sec. 3.1: the recording, frames and units checked | ``joint_data``, ``JointData`` | ``joint/data.py`` |
-| Park eq. 3 for directions, Siegfried eq. 1 and Sec. 3.2: the model, targets summed out | ``joint_model``, ``candidate_log_probabilities`` | ``joint/model.py`` |
+| Park eq. 3 for directions, Siegfried eq. 1 and Sec. 3.2: the model, the target chain summed out | ``joint_model``, ``marginal_log_likelihood``, ``target_marginals`` | ``joint/model.py`` |
 | Siegfried eq. 2, Park Sec. 3.3: the pipeline as the start | ``joint_start``, ``speaker_rule_bias``, ``initial_concurrences`` | ``joint/init.py`` |
 | NUTS, SVI, diagnostics, predictive check | ``fit_joint``, ``JointPosterior`` | ``joint/infer.py`` |
 | Siegfried eq. 1, Park Sec. 4.1: the pipeline's target rule, the oracle, calibration | ``nearest_target``, ``ray_intersection``, ``expected_calibration_error`` | ``joint/metrics.py`` |
@@ -14,12 +14,14 @@ the shared gaze concurrences, inferred together with calibrated posteriors.
 
 from jaxgaze.joint.data import JointData, joint_data
 from jaxgaze.joint.model import (
+    BLOCK_FRAMES,
     JointPrior,
     ModelArrays,
     candidate_log_probabilities,
     concurrence_locations,
     marginal_log_likelihood,
     joint_model,
+    target_marginals,
 )
 from jaxgaze.joint.init import (
     DEFAULT_CONCURRENCE_OPTIONS,
@@ -35,12 +37,14 @@ from jaxgaze.joint.metrics import expected_calibration_error, nearest_target, ra
 __all__ = [
     "JointData",
     "joint_data",
+    "BLOCK_FRAMES",
     "JointPrior",
     "ModelArrays",
     "candidate_log_probabilities",
     "concurrence_locations",
     "marginal_log_likelihood",
     "joint_model",
+    "target_marginals",
     "DEFAULT_CONCURRENCE_OPTIONS",
     "JointStart",
     "corrected_rays",

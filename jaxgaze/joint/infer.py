@@ -19,16 +19,19 @@ import jax.numpy as jnp
 import numpy as np
 import numpyro
 import numpyro.distributions as dist
-from jax.scipy.special import logsumexp
+import optimistix as optx
+from jax.flatten_util import ravel_pytree
+from numpyro import handlers
 from numpyro.infer import SVI, Predictive, Trace_ELBO
+from numpyro.infer.util import potential_energy
 
 from jaxgaze.bias import gaze_angles_to_direction, head_to_world
 from jaxgaze.cone import sample_gaze_directions
 from jaxgaze.geometry import angle_between, unit
 from jaxgaze.joint.data import JointData
 from jaxgaze.joint.init import JointStart, directions_to_people, joint_start
-from jaxgaze.joint.model import (JointPrior, ModelArrays, candidate_log_probabilities, concurrence_locations,
-                                 eye_positions, joint_model)
+from jaxgaze.joint.model import (BLOCK_FRAMES, JointPrior, ModelArrays, concurrence_locations, eye_positions,
+                                 joint_model, target_marginals)
 from jaxgaze.nuts import quiet_single_chain, sample_nuts
 from jaxgaze.rays import GazeRays
 from jaxgaze.results import RESULTS, name, throw_if_failed
@@ -43,15 +46,17 @@ MIN_ESS = 100
 MAX_DIVERGENT_SHARE = 0.01
 #: Inference methods of :func:`fit_joint`.
 METHODS = ("nuts", "svi")
-_SUMMARY_SITES = ("bias", "cone_width", "alpha_person", "alpha_object", "speaker_effect",
+_SUMMARY_SITES = ("bias", "cone_width", "alpha_person", "alpha_object", "speaker_effect", "stay",
                   "concurrence_locations", "eye_offset")
 #: Draws used for the membership probabilities and the predictive check.
 _MAX_PROBABILITY_DRAWS = 200
+#: BFGS steps of the start's refinement (:func:`_refine_start`).
+_REFINE_STEPS = 300
 
 
 @functools.lru_cache(maxsize=None)
-def _model(prior: JointPrior, frames_per_step: int | None):
-    return functools.partial(joint_model, prior=prior, frames_per_step=frames_per_step)
+def _model(prior: JointPrior, blocks_per_step: int | None):
+    return functools.partial(joint_model, prior=prior, blocks_per_step=blocks_per_step)
 
 
 def _arrays(data: JointData, centres, dtype) -> ModelArrays:
@@ -68,7 +73,8 @@ def _start_values(start: JointStart, prior: JointPrior, num_people: int) -> dict
     K = start.num_concurrences
     W = start.concurrence_centres.shape[0]
     values = {"bias": np.asarray(start.bias, float), "cone_width": np.full(num_people, prior.cone_width_median),
-              "alpha_person": np.zeros(()), "speaker_effect": np.asarray(prior.speaker_log_ratio)}
+              "alpha_person": np.zeros(()), "speaker_effect": np.asarray(prior.speaker_log_ratio),
+              "stay": np.asarray(0.9)}
     if K:
         values["alpha_object"] = np.zeros(())
         values["concurrence_offset"] = np.zeros((K, 3))
@@ -81,18 +87,52 @@ def _start_values(start: JointStart, prior: JointPrior, num_people: int) -> dict
 
 
 def _unconstrained(values: dict) -> dict:
-    """numpyro's unconstrained values: log for the positive widths, logit for the outlier shares."""
+    """numpyro's unconstrained values: log for the positive widths, logit for the probabilities."""
     out = dict(values)
     out["cone_width"] = np.log(values["cone_width"])
-    if "calibration_outlier_share" in values:
-        share = values["calibration_outlier_share"]
-        out["calibration_outlier_share"] = np.log(share) - np.log1p(-share)
+    for site in _UNIT_SITES:
+        if site in values:
+            out[site] = np.log(values[site]) - np.log1p(-values[site])
     return out
+
+
+@functools.partial(jax.jit, static_argnames=("prior",))
+def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior) -> dict:
+    """The posterior mode of the model with independent frames (``ρ = 10⁻⁶``), from the pipeline's start.
+
+    A start far from the truth (a pipeline bias tens of degrees off) puts the sticky
+    chain in a local mode where a person's whole recording is a held glance
+    elsewhere; with independent frames every gaze still pulls the bias towards its
+    nearest candidate, so the mode of that model is in the right basin. BFGS in
+    numpyro's unconstrained space; a failed or non-finite search keeps the start.
+    Wearers' eye offsets stay at Park's calibration: the mode of the eye's depth along
+    the primary ray is not where the truth is (see ``JointPrior.eye_offset_scale``),
+    and NUTS explores it from Park's estimate.
+    """
+    start = dict(start)
+    held = {"stay": jnp.asarray(1e-6, arrays.gaze_angles.dtype)}
+    if "eye_offset" in start:
+        held["eye_offset"] = start.pop("eye_offset")
+        held["calibration_outlier_share"] = jax.nn.sigmoid(start.pop("calibration_outlier_share"))
+    independent = handlers.condition(_model(prior, None), held)
+    flat, unravel = ravel_pytree(start)
+
+    def energy(x, _):
+        return potential_energy(independent, tuple(arrays), {}, unravel(x))
+
+    solution = optx.minimise(energy, optx.BFGS(rtol=1e-6, atol=1e-6), flat, max_steps=_REFINE_STEPS, throw=False)
+    x = solution.value
+    better = jnp.all(jnp.isfinite(x)) & (energy(x, None) <= energy(flat, None))
+    refined = unravel(jnp.where(better, x, flat))
+    if "eye_offset" in held:
+        refined["eye_offset"] = held["eye_offset"]
+        refined["calibration_outlier_share"] = jax.scipy.special.logit(held["calibration_outlier_share"])
+    return refined
 
 
 def _params(draw: dict, centres, prior: JointPrior) -> dict:
     """The model's parameters for one draw (locations from the latent offsets)."""
-    p = {k: draw[k] for k in ("bias", "cone_width", "alpha_person", "speaker_effect")}
+    p = {k: draw[k] for k in ("bias", "cone_width", "alpha_person", "speaker_effect", "stay")}
     if centres.shape[1]:
         p["alpha_object"] = draw["alpha_object"]
         p["locations"] = concurrence_locations(draw, centres, prior)
@@ -119,8 +159,8 @@ def _posterior_summaries(key, draws: dict, arrays: ModelArrays, prior: JointPrio
     def one(carry, key_and_draw):
         key, draw = key_and_draw
         params = _params(draw, arrays.location_centres, prior)
-        lp = candidate_log_probabilities(params, arrays, prior)
-        p = jnp.exp(lp - logsumexp(lp, axis=-1, keepdims=True))
+        p = target_marginals(params, arrays, prior)
+        lp = jnp.log(jnp.where(arrays.present[..., None], p, 1.0))
         people = p[..., :P]
         carry = (carry[0] + p, carry[1] + people * jnp.swapaxes(people, 1, 2))
 
@@ -163,9 +203,11 @@ class JointPosterior(NamedTuple):
             ``draws`` and, for SVI, ``elbo_change``.
         method: ``"nuts"`` or ``"svi"``.
         people: names; fps: frames per second.
-        membership: ``(T, P, C)`` posterior ``P(z_ti = j)`` (0 where absent).
+        membership: ``(T, P, C)`` posterior ``P(z_ti = j)`` given the whole recording
+            (forward–backward; 0 where absent).
         mutual: ``(T, P, P)`` ``P(i looks at j and j looks at i)``.
-        samples: posterior draws (``bias (S, P, 2)``, ``cone_width (S, P)``,
+        samples: posterior draws (``bias (S, P, 2)``, ``cone_width (S, P)``, ``stay (S,)``
+            (the probability that a target is held from one frame to the next),
             ``concurrence_locations (S, W, K, 3)``, …).
         window: ``(T,)`` window of each frame.
         start: the pipeline's answer the fit started from (a :class:`JointStart`).
@@ -341,8 +383,10 @@ def fit_joint(
         data: the recording, from :func:`~jaxgaze.joint.joint_data`.
         key: a ``jax.random`` key (the start's frame draw, the sampler, the checks).
         method: ``"nuts"`` (exact; a window of a minute or two) or ``"svi"`` (a
-            mean-field normal posterior, frames subsampled ``frames_per_step`` at a
-            time for ``num_steps`` Adam steps at ``learning_rate``; long recordings). A
+            mean-field normal posterior, frames subsampled in whole blocks of
+            :data:`~jaxgaze.joint.BLOCK_FRAMES`, ``frames_per_step`` at a time (rounded
+            down, at least one block), for ``num_steps`` Adam steps at
+            ``learning_rate``; long recordings). A
             mean-field posterior ignores correlations, so its intervals are narrower
             than NUTS's: use it for point estimates and memberships, NUTS on a window
             for intervals.
@@ -375,10 +419,13 @@ def fit_joint(
     values = _start_values(start, prior, data.num_people)
     K = start.num_concurrences
 
+    unconstrained = {k: jnp.asarray(v, dtype) for k, v in _unconstrained(values).items()}
+    stay = unconstrained.pop("stay")
+    unconstrained = {**_refine_start(unconstrained, arrays, prior), "stay": stay}
     if method == "nuts":
         model = _model(prior, None)
         batched = lambda a: jnp.broadcast_to(jnp.asarray(a), (num_chains,) + jnp.shape(a))  # noqa: E731
-        init = {k: batched(jnp.asarray(v, dtype)) for k, v in _unconstrained(values).items()}
+        init = {k: batched(v) for k, v in unconstrained.items()}
         draws, stats = sample_nuts(model, k_fit, tuple(batched(a) for a in arrays), init,
                                    num_warmup=int(num_warmup), num_samples=int(num_samples),
                                    dense_mass=True, progress_bar=progress, description="joint NUTS")
@@ -388,7 +435,7 @@ def fit_joint(
         diagnostics = _diagnostics(idata, stats["diverging"])
         result = _verdict(diagnostics)
     else:
-        draws, result, diagnostics = _svi(data, arrays, values, prior, k_fit, k_draws, int(num_steps),
+        draws, result, diagnostics = _svi(data, arrays, unconstrained, prior, k_fit, k_draws, int(num_steps),
                                           int(frames_per_step), float(learning_rate), int(num_samples), progress)
         idata = _inference_data(draws, None, data, K)
     flat = {k: v.reshape((-1,) + v.shape[2:]) for k, v in draws.items()}
@@ -409,7 +456,7 @@ def fit_joint(
 
 #: Sites on the positive half-line and in (0, 1): their guide is a normal in log and logit space.
 _POSITIVE_SITES = ("cone_width",)
-_UNIT_SITES = ("calibration_outlier_share",)
+_UNIT_SITES = ("stay", "calibration_outlier_share")
 
 
 def mean_field_guide(*model_args, start: dict, **model_kwargs):
@@ -435,11 +482,11 @@ def mean_field_guide(*model_args, start: dict, **model_kwargs):
         numpyro.sample(site, fn.to_event(value.ndim) if value.ndim else fn)
 
 
-def _svi(data, arrays, values, prior, key, key_draws, num_steps, frames_per_step, learning_rate, num_samples,
+def _svi(data, arrays, start, prior, key, key_draws, num_steps, frames_per_step, learning_rate, num_samples,
          progress):
-    batch = min(frames_per_step, data.num_frames)
-    model = _model(prior, batch if batch < data.num_frames else None)
-    start = {k: jnp.asarray(v, arrays.gaze_angles.dtype) for k, v in _unconstrained(values).items()}
+    num_blocks = -(-data.num_frames // BLOCK_FRAMES)
+    batch = max(1, frames_per_step // BLOCK_FRAMES)
+    model = _model(prior, batch if batch < num_blocks else None)
     guide = functools.partial(mean_field_guide, start=start)
     svi = SVI(model, guide, numpyro.optim.Adam(learning_rate), Trace_ELBO())
     run = svi.run(key, num_steps, *arrays, progress_bar=progress)
@@ -455,7 +502,7 @@ def _svi(data, arrays, values, prior, key, key_draws, num_steps, frames_per_step
     else:
         result = RESULTS.successful
     draws = Predictive(guide, params=run.params, num_samples=num_samples)(key_draws, *arrays)
-    latent = {k: np.asarray(v)[None] for k, v in draws.items() if k in values}
+    latent = {k: np.asarray(v)[None] for k, v in draws.items() if k in start}
     if "concurrence_offset" in latent:
         centres = arrays.location_centres
         latent["concurrence_locations"] = np.asarray(

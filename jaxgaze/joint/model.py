@@ -7,17 +7,30 @@ The person looks at one target ``z_ti``, chosen among
 * the other people present (their eye midpoints, known),
 * ``K`` free concurrences, latent 3D points shared by several people, piecewise
   constant over windows,
-* "elsewhere": a broad cone of fixed spread ``σ_e`` around the head's forward
-  direction (people glance away mostly ahead of the head; a uniform sphere makes a
-  glance just off a target look like a wide cone and inflates ``h``).
+* "elsewhere": a new glance away falls in a broad cone of fixed spread ``σ_e``
+  around the head's forward direction (people glance away mostly ahead of the
+  head; a uniform sphere makes a glance just off a target look like a wide cone and
+  inflates ``h``). A glance away is at a point held for its fixation: while the
+  chain stays elsewhere, ``d_t`` scatters around ``d_{t−1}`` with width
+  ``√(w_t² + w_{t−1}²)``. So a held glance just beside a person is told apart from
+  looking at them, which scatters around the person instead.
 
-The prior on the target depends on who speaks: ``logit P(z = j) = α_person + β·s_tj``
+The prior on a new target depends on who speaks: ``logit π_t(j) = α_person + β·s_tj``
 for a person ``j`` (``s`` = 1 while ``j`` speaks), ``α_object`` for a concurrence and
 0 for elsewhere, so a speaker is ``e^β`` times as likely a target as a silent
-person (the paper: 5–8 times). Given the target ``x``, ``d_ti`` scatters around
-``u = unit(x − p_ti)`` as Park's cone with width ``w_ti = √(h_i² + σ_ti²)``
-(``σ`` the optional per-frame measurement sd). ``z`` is summed out exactly:
-``log p(g) = Σ_ti log Σ_j P(z_ti = j) p(d_ti | j)``.
+person (the paper: 5–8 times). People hold a target for a while (a fixation), so
+``z_ti`` is a sticky Markov chain over the frames: with probability ``ρ`` the
+target of the previous frame is kept, otherwise it is drawn afresh from ``π_t``,
+
+``P(z_t = j | z_{t−1} = k) = ρ·[j = k] + (1 − ρ)·π_t(j)``.
+
+Given the target ``x``, ``d_ti`` scatters around ``u = unit(x − p_ti)`` as Park's
+cone with width ``w_ti = √(h_i² + σ_ti²)`` (``σ`` the optional per-frame
+measurement sd). ``z`` is summed out exactly by the forward algorithm, ``O(C)`` per
+frame and person for this transition. The chain restarts from ``π`` every
+:data:`BLOCK_FRAMES` frames: the blocks are independent, run in parallel, and
+are what SVI subsamples. A frame where the gazer is absent moves the chain on
+without an observation.
 
 Candidate order, everywhere: people ``0 … P−1``, concurrences ``P … P+K−1``,
 elsewhere ``P+K``.
@@ -40,8 +53,14 @@ from jaxgaze.calibration import calibration_log_likelihood
 from jaxgaze.cone import cone_direction_log_density
 from jaxgaze.geometry import unit
 
-__all__ = ["JointPrior", "ModelArrays", "joint_model", "candidate_log_probabilities", "marginal_log_likelihood",
-           "concurrence_locations", "eye_positions"]
+__all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "candidate_log_probabilities",
+           "marginal_log_likelihood", "target_marginals", "concurrence_locations", "eye_positions"]
+
+#: Frames per block of the target chain (it restarts from the prior at each block).
+BLOCK_FRAMES = 64
+# Impossible candidates (oneself, an absent person) enter the forward pass at this log
+# weight instead of −inf, so that no gradient is NaN.
+_LOG_FLOOR = -1e4
 
 
 class JointPrior(NamedTuple):
@@ -57,9 +76,15 @@ class JointPrior(NamedTuple):
         location_scale: sd (m) of a concurrence around its mean-shift initialisation.
         window_drift: sd (m) of a concurrence's per-window move around its own centre.
         eye_offset_scale: sd (m) of a wearer's eye centre in the camera frame (Park et al.
-            2012, Sec. 3.2, as in :func:`~jaxgaze.calibration.calibration_model`).
+            2012, Sec. 3.2); a head-mounted camera sits within about 10 cm of the eyes.
+            The data pin the eye's depth along the primary ray only weakly: moving the
+            eye back along the ray shrinks every angle to a target, as a narrower cone
+            would, and the held glances elsewhere can absorb the others' looks that
+            then miss. Wider than 0.1 m, a wearer's eye can run metres back.
         elsewhere_spread: the spread (radians) of glances elsewhere around the head's
             forward direction, a Fisher cone with ``κ = 1/σ_e²``.
+        stay_concentration: ``(a, b)`` of the Beta prior of ``ρ``, the probability that a
+            person keeps the previous frame's target.
     """
 
     bias_scale: float = 0.25
@@ -70,8 +95,9 @@ class JointPrior(NamedTuple):
     speaker_log_ratio_sd: float = 0.15
     location_scale: float = 0.5
     window_drift: float = 0.1
-    eye_offset_scale: float = 0.2
+    eye_offset_scale: float = 0.1
     elsewhere_spread: float = 0.6
+    stay_concentration: tuple[float, float] = (2.0, 1.0)
 
 
 class ModelArrays(NamedTuple):
@@ -132,15 +158,15 @@ def _parts(params: dict, arrays: ModelArrays, prior: JointPrior):
     others = present[:, None, :] & ~jnp.eye(P, dtype=bool)[None]
     people_logit = jnp.where(others, params["alpha_person"] + params["speaker_effect"] * speaking[:, None, :], -jnp.inf)
     locations = params["locations"]
+    directions = head_to_world(directions_head, R)  # (T, P, 3), world frame
     if locations.shape[1]:
-        directions = head_to_world(directions_head, R)  # (T, P, 3), world frame
         to_slots = unit(locations[window][:, None] - eyes[:, :, None])  # (T, P, K, 3)
         slot_lik = cone_direction_log_density(jnp.einsum("tik,tijk->tij", directions, to_slots), width)
     else:
         slot_lik = jnp.zeros((T, P, 0), directions_head.dtype)
     forward = directions_head[..., 0]  # cosine to the head's +x
     elsewhere = cone_direction_log_density(forward, jnp.asarray(prior.elsewhere_spread, forward.dtype))
-    return people_logit, people_lik, others, slot_lik, elsewhere
+    return people_logit, people_lik, others, slot_lik, elsewhere, directions, width[..., 0]
 
 
 def _log_normaliser(people_logit, num_slots: int, alpha_object):
@@ -151,36 +177,115 @@ def _log_normaliser(people_logit, num_slots: int, alpha_object):
     return logsumexp(jnp.stack(terms), axis=0)
 
 
+def _candidate_terms(params: dict, arrays: ModelArrays, prior: JointPrior):
+    """``log π_ti(j)`` (the prior of a new target) and ``log p(g_ti | z_ti = j)``, each ``(T, P, C)``, with the
+    world gaze directions ``(T, P, 3)`` and widths ``(T, P)`` that a held glance elsewhere is scored by."""
+    people_logit, people_lik, others, slot_lik, elsewhere, directions, width = _parts(params, arrays, prior)
+    K = slot_lik.shape[-1]
+    log_z = _log_normaliser(people_logit, K, params["alpha_object"])[..., None]
+    log_prior = jnp.concatenate([people_logit, jnp.broadcast_to(params["alpha_object"], slot_lik.shape),
+                                 jnp.zeros_like(elsewhere)[..., None]], axis=-1) - log_z
+    log_lik = jnp.concatenate([jnp.where(others, people_lik, -jnp.inf), slot_lik, elsewhere[..., None]], axis=-1)
+    return log_prior, log_lik, directions, width
+
+
 def candidate_log_probabilities(params: dict, arrays: ModelArrays, prior: JointPrior = JointPrior()
                                 ) -> Float[Array, "T P C"]:
-    """``log P(z_ti = j) + log p(g_ti | z_ti = j)`` for every candidate ``j`` (Park et al. 2012, eq. 3; Siegfried et al. 2017, Sec. 3.2).
+    """``log π_ti(j) + log p(g_ti | z_ti = j)`` for every candidate ``j``, one frame on its own (Park et al. 2012, eq. 3; Siegfried et al. 2017, Sec. 3.2).
 
     ``params`` holds ``bias (P, 2)``, ``cone_width (P,)``, ``alpha_person``,
     ``alpha_object``, ``speaker_effect`` and ``locations (W, K, 3)``. Impossible
     candidates (oneself, an absent person) are ``−inf``. Rows of absent gazers are
-    meaningless; the caller masks them.
+    meaningless; the caller masks them. The posterior over targets, which also
+    uses the neighbouring frames, is :func:`target_marginals`.
     """
-    people_logit, people_lik, others, slot_lik, elsewhere = _parts(params, arrays, prior)
-    K = slot_lik.shape[-1]
-    log_z = _log_normaliser(people_logit, K, params["alpha_object"])[..., None]
-    people = jnp.where(others, people_logit + people_lik, -jnp.inf)
-    slots = params["alpha_object"] + slot_lik
-    return jnp.concatenate([people, slots, elsewhere[..., None]], axis=-1) - log_z
+    log_prior, log_lik, _, _ = _candidate_terms(params, arrays, prior)
+    return log_prior + log_lik
+
+
+def _blocks(num_frames: int):
+    """Frame index ``(B, L)`` of each block position (the last frame repeated as padding) and its validity."""
+    B = -(-num_frames // BLOCK_FRAMES)
+    index = jnp.arange(B * BLOCK_FRAMES).reshape(B, BLOCK_FRAMES)
+    return jnp.minimum(index, num_frames - 1), index < num_frames
+
+
+def _held_elsewhere(log_lik, directions, width, observed):
+    """``(B, L, P)``: log p(g_t | a glance elsewhere held from frame t−1) − log p(g_t | a new glance elsewhere).
+
+    A glance elsewhere is at a point fixed for its fixation, so while it is held,
+    ``d_t`` scatters around ``d_{t−1}`` with width ``√(w_t² + w_{t−1}²)``. 0 at a block's
+    first frame and where frame ``t`` or ``t − 1`` is not observed (a new glance's
+    density is used there).
+    """
+    cosine = jnp.sum(directions[:, 1:] * directions[:, :-1], axis=-1)
+    pair = jnp.sqrt(jnp.square(width[:, 1:]) + jnp.square(width[:, :-1]))
+    both = observed[:, 1:] & observed[:, :-1]
+    held = jnp.where(both, cone_direction_log_density(jnp.where(both, cosine, 1.0), pair) - log_lik[:, 1:, :, -1], 0.0)
+    return jnp.concatenate([jnp.zeros_like(held[:, :1]), held], axis=1)
+
+
+def _forward(log_prior, log_lik, held, observed, stay, shift=None):
+    """The forward algorithm of the sticky chain on blocks: ``(B, L, P, C)`` inputs, returns ``log p (B, P)``.
+
+    ``a_t = log p(z_t, g_{≤t}) − log p(g_{<t})``; a new block starts from ``π``, then
+    ``a_t(j) = logaddexp(log ρ + a_{t−1}(j) + η_t(j), log(1 − ρ) + log π_t(j)) + log p(g_t | j)``,
+    the emission only where ``observed`` and ``η`` the held-glance term of elsewhere
+    (:func:`_held_elsewhere`; 0 for the other candidates). The gradient with respect to
+    ``shift``, added to every emission, is the posterior ``P(z_t = j | g)``.
+    """
+    log_prior = jnp.maximum(log_prior, _LOG_FLOOR)
+    if shift is not None:
+        log_lik = jnp.maximum(log_lik, _LOG_FLOOR) + shift
+    log_lik = jnp.where(observed[..., None], jnp.maximum(log_lik, _LOG_FLOOR), 0.0)
+    held = jnp.concatenate([jnp.zeros(held.shape + (log_lik.shape[-1] - 1,), held.dtype), held[..., None]], axis=-1)
+    log_stay, log_switch = jnp.log(stay), jnp.log1p(-stay)
+
+    def step(a, x):
+        prior_t, lik_t, held_t, first = x
+        predicted = jnp.where(first, prior_t, jnp.logaddexp(log_stay + a + held_t, log_switch + prior_t))
+        joint = predicted + lik_t
+        norm = logsumexp(joint, axis=-1, keepdims=True)
+        return joint - norm, norm[..., 0]
+
+    first = jnp.arange(log_prior.shape[1]) == 0
+    swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
+    _, norms = jax.lax.scan(step, jnp.zeros_like(log_prior[:, 0]),
+                            (swap(log_prior), swap(log_lik), swap(held), first))
+    return jnp.sum(norms, axis=0)
+
+
+def _blocked_log_likelihood(terms, present, stay, frames, shift=None):
+    """The forward pass over every block of ``(T, …)`` candidate terms (gathered into ``(B, L, …)``)."""
+    log_prior, log_lik, directions, width = (a[frames[0]] for a in terms)
+    observed = present[frames[0]] & frames[1][..., None]
+    held = _held_elsewhere(log_lik, directions, width, observed)
+    return _forward(log_prior, log_lik, held, observed, stay, None if shift is None else shift[frames[0]])
 
 
 def marginal_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior = JointPrior()
-                            ) -> Float[Array, "T P"]:
-    """``log p(g_ti) = log Σ_j P(z_ti = j) p(g_ti | j)``, the target summed out (0 where absent).
+                            ) -> Float[Array, "B P"]:
+    """``log p(g_i | block)`` with the target chain summed out, per block of :data:`BLOCK_FRAMES` frames and person (Park et al. 2012, eq. 3; Siegfried et al. 2017, Sec. 3.2).
 
-    The same sum as ``logsumexp`` of :func:`candidate_log_probabilities`, by groups.
+    ``params`` as :func:`candidate_log_probabilities`, plus ``stay`` (``ρ``). The
+    sum over blocks is the log likelihood of the recording.
     """
-    people_logit, people_lik, others, slot_lik, elsewhere = _parts(params, arrays, prior)
-    K = slot_lik.shape[-1]
-    terms = [logsumexp(jnp.where(others, people_logit + people_lik, -jnp.inf), axis=-1), elsewhere]
-    if K:
-        terms.append(params["alpha_object"] + logsumexp(slot_lik, axis=-1))
-    total = logsumexp(jnp.stack(terms), axis=0) - _log_normaliser(people_logit, K, params["alpha_object"])
-    return jnp.where(arrays.present, total, 0.0)
+    terms = _candidate_terms(params, arrays, prior)
+    return _blocked_log_likelihood(terms, arrays.present, params["stay"], _blocks(arrays.present.shape[0]))
+
+
+def target_marginals(params: dict, arrays: ModelArrays, prior: JointPrior = JointPrior()
+                     ) -> Float[Array, "T P C"]:
+    """``P(z_ti = j | all gaze)``: the smoothed posterior of every target (0 where the gazer is absent).
+
+    The gradient of ``log p(g)`` with respect to a shift of ``log p(g_ti | z_ti = j)``
+    is that posterior (forward–backward by automatic differentiation).
+    """
+    terms = _candidate_terms(params, arrays, prior)
+    frames = _blocks(arrays.present.shape[0])
+    total = lambda shift: jnp.sum(_blocked_log_likelihood(terms, arrays.present, params["stay"], frames, shift))  # noqa: E731
+    probabilities = jax.grad(total)(jnp.zeros_like(terms[0]))
+    return jnp.where(arrays.present[..., None], probabilities, 0.0)
 
 
 def joint_model(
@@ -198,7 +303,7 @@ def joint_model(
     wearer_index,
     *,
     prior: JointPrior = JointPrior(),
-    frames_per_step: int | None = None,
+    blocks_per_step: int | None = None,
 ):
     """numpyro model of a whole recording: biases, cone widths, speaker prior and concurrences (Park et al. 2012, eq. 3; Siegfried et al. 2017, eq. 1).
 
@@ -208,8 +313,8 @@ def joint_model(
     the same primary ray ``(c, Φ(b))`` and width ``h`` as their gaze in the
     recording (:func:`~jaxgaze.calibration.calibration_log_likelihood`), so the
     calibration is inferred with the rest.
-    ``frames_per_step`` subsamples frames for SVI (the likelihood is rescaled by
-    ``numpyro.plate``); ``None`` uses every frame.
+    ``blocks_per_step`` subsamples blocks of :data:`BLOCK_FRAMES` frames for SVI
+    (the likelihood is rescaled by ``numpyro.plate``); ``None`` uses every block.
     """
     T, P = present.shape
     W, K = location_centres.shape[:2]
@@ -221,7 +326,9 @@ def joint_model(
     alpha_person = numpyro.sample("alpha_person", dist.Normal(jnp.zeros((), dtype), prior.logit_scale))
     speaker_effect = numpyro.sample("speaker_effect",
                                     dist.Normal(jnp.asarray(prior.speaker_log_ratio, dtype), prior.speaker_log_ratio_sd))
-    params = {"bias": bias, "cone_width": cone_width, "alpha_person": alpha_person, "speaker_effect": speaker_effect}
+    stay = numpyro.sample("stay", dist.Beta(*(jnp.asarray(c, dtype) for c in prior.stay_concentration)))
+    params = {"bias": bias, "cone_width": cone_width, "alpha_person": alpha_person, "speaker_effect": speaker_effect,
+              "stay": stay}
     if K:
         params["alpha_object"] = numpyro.sample("alpha_object", dist.Normal(jnp.zeros((), dtype), prior.logit_scale))
         latent = {"concurrence_offset": numpyro.sample(
@@ -247,7 +354,10 @@ def joint_model(
         per_point, _ = jax.vmap(calibration_log_likelihood)(
             calibration_points[wearer_index], params["eye_offset"], direction, cone_width[wearer_index], outlier_share)
         numpyro.factor("calibration", jnp.sum(jnp.where(calibration_mask[wearer_index], per_point, 0.0)))
-    with numpyro.plate("frames", T, subsample_size=frames_per_step) as frames:
-        if frames_per_step is not None:
-            arrays = ModelArrays(*(a[frames] for a in arrays[:8]), *arrays[8:])
-        numpyro.factor("gaze", jnp.sum(marginal_log_likelihood(params, arrays, prior), axis=-1))
+    index, valid = _blocks(T)
+    with numpyro.plate("blocks", index.shape[0], subsample_size=blocks_per_step) as blocks:
+        index, valid = index[blocks], valid[blocks]
+        local = ModelArrays(*(a[index.reshape(-1)] for a in arrays[:8]), *arrays[8:])  # (B·L, …), blocks in a row
+        terms = _candidate_terms(params, local, prior)
+        frames = (jnp.arange(index.size).reshape(index.shape), valid)
+        numpyro.factor("gaze", jnp.sum(_blocked_log_likelihood(terms, local.present, stay, frames), axis=-1))

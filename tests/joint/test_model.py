@@ -12,10 +12,12 @@ import pytest
 from numpyro import handlers
 from numpyro.infer.util import potential_energy
 
+from jaxgaze.cone import cone_direction_log_density
 from jaxgaze.geometry import head_pose_to_rotation
-from jaxgaze.joint import (JointPrior, candidate_log_probabilities, joint_data, joint_model,
-                           marginal_log_likelihood)
+from jaxgaze.joint import (BLOCK_FRAMES, JointPrior, candidate_log_probabilities, joint_data, joint_model,
+                           marginal_log_likelihood, target_marginals)
 from jaxgaze.joint.infer import _arrays
+from jaxgaze.joint.model import _candidate_terms
 
 
 def _tiny(seed=0, T=2, P=3, K=1):
@@ -30,13 +32,13 @@ def _tiny(seed=0, T=2, P=3, K=1):
     data = joint_data(eyes, R, gaze, speaking=speaking, measurement_scale=0.01 + 0.02 * rng.random((T, P)), fps=5.0)
     centres = rng.normal(size=(1, K, 3)) * 0.3 + np.array([0.0, 0.0, 0.8])
     params = {"bias": 0.1 * rng.normal(size=(P, 2)), "cone_width": 0.05 + 0.1 * rng.random(P),
-              "alpha_person": 0.4, "alpha_object": -0.3, "speaker_effect": 1.8,
+              "alpha_person": 0.4, "alpha_object": -0.3, "speaker_effect": 1.8, "stay": 0.7,
               "locations": centres + 0.1 * rng.normal(size=centres.shape)}
     return data, centres, params
 
 
-def _brute_force(data, params):
-    """``log Σ_z p(g, z)`` by enumerating every joint assignment, with the formulas written out in numpy."""
+def _per_gazer(data, params):
+    """For every frame and person: ``{candidate: (log prior of a new target, log likelihood)}``, written out in numpy."""
     T, P = data.present.shape
     K = params["locations"].shape[1]
 
@@ -44,7 +46,7 @@ def _brute_force(data, params):
         kappa = 1.0 / h**2
         return math.log(kappa) - math.log(2 * math.pi) - math.log(1 - math.exp(-2 * kappa)) + kappa * (cosine - 1)
 
-    per_gazer = []  # for each (t, i): {candidate: log prior + log likelihood}
+    out, rays = {}, {}
     for t in range(T):
         for i in range(P):
             yaw, tilt = data.gaze_angles[t, i] + params["bias"][i]
@@ -53,7 +55,7 @@ def _brute_force(data, params):
             h = math.sqrt(params["cone_width"][i] ** 2 + data.measurement_scale[t, i] ** 2)
             logits, liks = {}, {}
             for j in range(P):
-                if j != i:
+                if j != i and data.present[t, j]:
                     logits[j] = params["alpha_person"] + params["speaker_effect"] * data.speaking[t, j]
                     u = data.eye_positions[t, j] - data.eye_positions[t, i]
                     liks[j] = log_fisher(world @ u / np.linalg.norm(u), h)
@@ -64,39 +66,98 @@ def _brute_force(data, params):
             logits["e"] = 0.0
             liks["e"] = log_fisher(head[0], JointPrior().elsewhere_spread)  # around the head's +x
             norm = math.log(sum(math.exp(v) for v in logits.values()))
-            per_gazer.append({c: logits[c] - norm + liks[c] for c in logits})
-    total = -math.inf
-    for choice in itertools.product(*[list(g) for g in per_gazer]):
-        lp = sum(g[c] for g, c in zip(per_gazer, choice))
-        total = np.logaddexp(total, lp)
-    return total, per_gazer
+            out[t, i] = {c: (logits[c] - norm, liks[c]) for c in logits}
+            rays[t, i] = (world, h)
+    return out, rays, log_fisher
+
+
+def _brute_force(data, params):
+    """``log Σ_z p(g, z)`` and ``P(z_ti = j | g)`` by enumerating every target sequence of every person.
+
+    A glance elsewhere held from frame ``t − 1`` scatters around the previous direction.
+    """
+    T, P = data.present.shape
+    terms, rays, log_fisher = _per_gazer(data, params)
+    rho = params["stay"]
+    total, marginals = 0.0, {}
+    for i in range(P):
+        names = list(dict.fromkeys(c for t in range(T) for c in terms[t, i]))  # every candidate of any frame
+        weights = {}
+        for seq in itertools.product(names, repeat=T):
+            if any(c not in terms[t, i] for t, c in enumerate(seq)):
+                continue
+            observed = data.present[:, i]
+            lp = terms[0, i][seq[0]][0] + (terms[0, i][seq[0]][1] if observed[0] else 0.0)
+            for t in range(1, T):
+                c = seq[t]
+                new = terms[t, i][c][1] if observed[t] else 0.0
+                held = new
+                if c == "e" and observed[t] and observed[t - 1]:
+                    (d1, h1), (d0, h0) = rays[t, i], rays[t - 1, i]
+                    held = log_fisher(d1 @ d0, math.sqrt(h1**2 + h0**2))
+                lp += math.log(rho * (c == seq[t - 1]) * math.exp(held) + (1 - rho) * math.exp(terms[t, i][c][0] + new))
+            weights[seq] = lp
+        norm = np.logaddexp.reduce(list(weights.values()))
+        total += norm
+        for t in range(T):
+            for c in names:
+                marginals[t, i, c] = sum(math.exp(w - norm) for seq, w in weights.items() if seq[t] == c)
+    return total, terms, marginals
+
+
+def _column(c, P):
+    return 4 if c == "e" else c  # the tiny scene: P = 3 people, K = 1 concurrence
 
 
 def test_marginal_matches_brute_force_enumeration(x64):
-    data, centres, params = _tiny()
+    data, centres, params = _tiny(T=3)
     arrays = _arrays(data, centres, jnp.float64)
     jparams = jax.tree_util.tree_map(jnp.asarray, params)
-    expected, per_gazer = _brute_force(data, params)
-    assert float(jnp.sum(jax.jit(marginal_log_likelihood)(jparams, arrays))) == pytest.approx(expected, rel=1e-10,
-                                                                                               abs=1e-9)
+    expected, terms, marginals = _brute_force(data, params)
+    assert float(jnp.sum(jax.jit(marginal_log_likelihood)(jparams, arrays))) == pytest.approx(expected, rel=1e-10)
+    # one frame's candidates, order: people, concurrences, elsewhere
     lp = np.asarray(jax.jit(candidate_log_probabilities)(jparams, arrays))
-    assert float(np.sum(jax.scipy.special.logsumexp(lp, axis=-1))) == pytest.approx(expected, rel=1e-10)
-    # one gazer's candidates, order: people, concurrences, elsewhere
-    g = per_gazer[1]  # frame 0, person 1
+    g = terms[0, 1]  # frame 0, person 1
     assert lp[0, 1, 1] == -np.inf
-    assert lp[0, 1, 0] == pytest.approx(g[0], rel=1e-10) and lp[0, 1, 3] == pytest.approx(g[3], rel=1e-10)
-    assert lp[0, 1, 4] == pytest.approx(g["e"], rel=1e-10)
+    for c in (0, 3, "e"):
+        assert lp[0, 1, _column(c, 3)] == pytest.approx(sum(g[c]), rel=1e-10)
+    # the smoothed target posterior
+    m = np.asarray(jax.jit(target_marginals)(jparams, arrays))
+    for (t, i, c), value in marginals.items():
+        assert m[t, i, _column(c, 3)] == pytest.approx(value, rel=1e-8, abs=1e-12)
     # the model's factor is the same sum
     latent = {"bias": params["bias"], "cone_width": params["cone_width"], "alpha_person": params["alpha_person"],
               "alpha_object": params["alpha_object"], "speaker_effect": params["speaker_effect"],
+              "stay": params["stay"],
               "concurrence_offset": (params["locations"][0] - centres[0]) / JointPrior().location_scale}
     trace = handlers.trace(handlers.substitute(joint_model, latent)).get_trace(*arrays)
     assert float(trace["gaze"]["fn"].log_factor.sum()) == pytest.approx(expected, rel=1e-10)
 
 
+def test_blocks_restart_the_chain(x64):
+    """Two closed forms over two blocks (T = 70 > BLOCK_FRAMES): ρ = 0 is independent frames, ρ = 1 one target per block."""
+    data, centres, params = _tiny(seed=5, T=BLOCK_FRAMES + 6)
+    arrays = _arrays(data, centres, jnp.float64)
+    jparams = jax.tree_util.tree_map(jnp.asarray, params)
+    lp = np.asarray(candidate_log_probabilities(jparams, arrays))
+    loose = float(jnp.sum(marginal_log_likelihood({**jparams, "stay": jnp.asarray(0.0)}, arrays)))
+    assert loose == pytest.approx(float(np.sum(jax.scipy.special.logsumexp(lp, axis=-1))), rel=1e-9)
+    prior, lik, d, w = (np.asarray(a) for a in jax.jit(_candidate_terms)(jparams, arrays, JointPrior()))
+    # a glance elsewhere held over the block: its first frame's density, then each frame around the last
+    held = np.asarray(cone_direction_log_density(np.sum(d[1:] * d[:-1], -1), np.sqrt(w[1:] ** 2 + w[:-1] ** 2)))
+    expected = 0.0
+    for start in (0, BLOCK_FRAMES):
+        block = slice(start, start + BLOCK_FRAMES)
+        total = lik[block].sum(0)
+        total[:, -1] = lik[start, :, -1] + held[start: start + BLOCK_FRAMES - 1].sum(0)
+        expected += float(np.sum(jax.scipy.special.logsumexp(prior[start] + total, axis=-1)))
+    held = float(jnp.sum(marginal_log_likelihood({**jparams, "stay": jnp.asarray(1.0)}, arrays)))
+    assert held == pytest.approx(expected, rel=1e-6)
+
+
 def test_absent_people_are_no_candidates_and_add_nothing(x64):
-    data, centres, params = _tiny(seed=1, T=2, P=4)
-    present = np.ones((2, 4), bool)
+    data, centres, params = _tiny(seed=1, T=3, P=4)
+    present = np.ones((3, 4), bool)
     present[0, 2] = False
     gaze = data.gaze_angles.copy()
     gaze[0, 2] = np.nan  # absent: may be NaN
@@ -106,8 +167,13 @@ def test_absent_people_are_no_candidates_and_add_nothing(x64):
     jparams = jax.tree_util.tree_map(jnp.asarray, params)
     lp = np.asarray(jax.jit(candidate_log_probabilities)(jparams, arrays))
     assert np.all(lp[0, [0, 1, 3], 2] == -np.inf)  # nobody looks at the absent person
-    ll = np.asarray(jax.jit(marginal_log_likelihood)(jparams, arrays))
-    assert ll[0, 2] == 0.0 and np.all(np.isfinite(ll))
+    m = np.asarray(jax.jit(target_marginals)(jparams, arrays))
+    assert np.all(m[0, 2] == 0.0) and np.all(m[0, [0, 1, 3], 2] == 0.0)
+    np.testing.assert_allclose(m[present].sum(-1), 1.0, rtol=1e-10)
+    # the absent frame moves the chain on without an observation: the brute force agrees
+    expected, _, marginals = _brute_force(masked, {**params})
+    assert float(jnp.sum(marginal_log_likelihood(jparams, arrays))) == pytest.approx(expected, rel=1e-10)
+    assert m[1, 2, 0] == pytest.approx(marginals[1, 2, 0], rel=1e-8)
 
 
 def test_gradients_match_finite_differences(x64):
@@ -115,7 +181,8 @@ def test_gradients_match_finite_differences(x64):
     arrays = tuple(_arrays(data, centres, jnp.float64))
     rng = np.random.default_rng(3)
     u = {"bias": jnp.asarray(0.1 * rng.normal(size=(3, 2))), "cone_width": jnp.asarray(np.log([0.05, 0.08, 0.1])),
-         "alpha_person": jnp.asarray(0.2), "alpha_object": jnp.asarray(-0.1), "speaker_effect": jnp.asarray(1.7), "concurrence_offset": jnp.asarray(0.1 * rng.normal(size=(1, 3)))}
+         "alpha_person": jnp.asarray(0.2), "alpha_object": jnp.asarray(-0.1), "speaker_effect": jnp.asarray(1.7),
+         "stay": jnp.asarray(0.8), "concurrence_offset": jnp.asarray(0.1 * rng.normal(size=(1, 3)))}
     energy = jax.jit(lambda z: potential_energy(joint_model, arrays, {}, z))
     grad = jax.jit(jax.grad(energy))(u)
     flat, unravel = jax.flatten_util.ravel_pytree(u)
