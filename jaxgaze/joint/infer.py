@@ -393,7 +393,9 @@ def fit_joint(
         num_warmup, num_samples, num_chains: NUTS settings (``num_samples`` draws are
             also taken from the SVI posterior).
         prior: a :class:`JointPrior`.
-        start: the pipeline's answer to start from (default :func:`joint_start`).
+        start: the pipeline's answer to start from (default :func:`joint_start`). It is
+            first refined to the mode of the model with independent frames (BFGS; the
+            wearers' eye offsets are kept), then sampled or fitted from there.
         progress: progress bars on stderr.
         throw: raise :class:`~jaxgaze.results.FitError` instead of returning a
             failed ``result``.
