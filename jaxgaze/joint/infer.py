@@ -109,11 +109,12 @@ def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior) -> dict:
     the primary ray is not where the truth is (see ``JointPrior.eye_offset_scale``),
     and NUTS explores it from Park's estimate.
     """
-    start = dict(start)
+    kept = {k: v for k, v in start.items() if k in ("stay", "eye_offset", "calibration_outlier_share")}
+    start = {k: v for k, v in start.items() if k not in kept}
     held = {"stay": jnp.asarray(1e-6, arrays.gaze_angles.dtype)}
-    if "eye_offset" in start:
-        held["eye_offset"] = start.pop("eye_offset")
-        held["calibration_outlier_share"] = jax.nn.sigmoid(start.pop("calibration_outlier_share"))
+    if "eye_offset" in kept:
+        held["eye_offset"] = kept["eye_offset"]
+        held["calibration_outlier_share"] = jax.nn.sigmoid(kept["calibration_outlier_share"])
     independent = handlers.condition(_model(prior, None), held)
     flat, unravel = ravel_pytree(start)
 
@@ -123,11 +124,7 @@ def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior) -> dict:
     solution = optx.minimise(energy, optx.BFGS(rtol=1e-6, atol=1e-6), flat, max_steps=_REFINE_STEPS, throw=False)
     x = solution.value
     better = jnp.all(jnp.isfinite(x)) & (energy(x, None) <= energy(flat, None))
-    refined = unravel(jnp.where(better, x, flat))
-    if "eye_offset" in held:
-        refined["eye_offset"] = held["eye_offset"]
-        refined["calibration_outlier_share"] = jax.scipy.special.logit(held["calibration_outlier_share"])
-    return refined
+    return {**unravel(jnp.where(better, x, flat)), **kept}
 
 
 def _params(draw: dict, centres, prior: JointPrior) -> dict:
@@ -421,9 +418,8 @@ def fit_joint(
     values = _start_values(start, prior, data.num_people)
     K = start.num_concurrences
 
-    unconstrained = {k: jnp.asarray(v, dtype) for k, v in _unconstrained(values).items()}
-    stay = unconstrained.pop("stay")
-    unconstrained = {**_refine_start(unconstrained, arrays, prior), "stay": stay}
+    unconstrained = _refine_start({k: jnp.asarray(v, dtype) for k, v in _unconstrained(values).items()}, arrays,
+                                  prior)
     if method == "nuts":
         model = _model(prior, None)
         batched = lambda a: jnp.broadcast_to(jnp.asarray(a), (num_chains,) + jnp.shape(a))  # noqa: E731

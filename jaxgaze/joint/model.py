@@ -235,10 +235,11 @@ def _forward(log_prior, log_lik, held, observed, stay, shift=None):
     ``shift``, added to every emission, is the posterior ``P(z_t = j | g)``.
     """
     log_prior = jnp.maximum(log_prior, _LOG_FLOOR)
+    log_lik = jnp.maximum(log_lik, _LOG_FLOOR)
     if shift is not None:
-        log_lik = jnp.maximum(log_lik, _LOG_FLOOR) + shift
-    log_lik = jnp.where(observed[..., None], jnp.maximum(log_lik, _LOG_FLOOR), 0.0)
-    held = jnp.concatenate([jnp.zeros(held.shape + (log_lik.shape[-1] - 1,), held.dtype), held[..., None]], axis=-1)
+        log_lik = log_lik + shift
+    log_lik = jnp.where(observed[..., None], log_lik, 0.0)
+    held = jnp.zeros_like(log_lik).at[..., -1].set(held)
     log_stay, log_switch = jnp.log(stay), jnp.log1p(-stay)
 
     def step(a, x):
@@ -255,12 +256,18 @@ def _forward(log_prior, log_lik, held, observed, stay, shift=None):
     return jnp.sum(norms, axis=0)
 
 
+def _chain_log_likelihood(blocked_terms, observed, stay, shift=None):
+    """``log p (B, P)`` of candidate terms already in blocks ``(B, L, …)``: held glances, then the forward pass."""
+    log_prior, log_lik, directions, width = blocked_terms
+    held = _held_elsewhere(log_lik, directions, width, observed)
+    return _forward(log_prior, log_lik, held, observed, stay, shift)
+
+
 def _blocked_log_likelihood(terms, present, stay, frames, shift=None):
     """The forward pass over every block of ``(T, …)`` candidate terms (gathered into ``(B, L, …)``)."""
-    log_prior, log_lik, directions, width = (a[frames[0]] for a in terms)
-    observed = present[frames[0]] & frames[1][..., None]
-    held = _held_elsewhere(log_lik, directions, width, observed)
-    return _forward(log_prior, log_lik, held, observed, stay, None if shift is None else shift[frames[0]])
+    index, valid = frames
+    return _chain_log_likelihood(tuple(a[index] for a in terms), present[index] & valid[..., None], stay,
+                                 None if shift is None else shift[index])
 
 
 def marginal_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior = JointPrior()
@@ -358,6 +365,6 @@ def joint_model(
     with numpyro.plate("blocks", index.shape[0], subsample_size=blocks_per_step) as blocks:
         index, valid = index[blocks], valid[blocks]
         local = ModelArrays(*(a[index.reshape(-1)] for a in arrays[:8]), *arrays[8:])  # (B·L, …), blocks in a row
-        terms = _candidate_terms(params, local, prior)
-        frames = (jnp.arange(index.size).reshape(index.shape), valid)
-        numpyro.factor("gaze", jnp.sum(_blocked_log_likelihood(terms, local.present, stay, frames), axis=-1))
+        terms = tuple(a.reshape(index.shape + a.shape[1:]) for a in _candidate_terms(params, local, prior))
+        observed = local.present.reshape(index.shape + (P,)) & valid[..., None]
+        numpyro.factor("gaze", jnp.sum(_chain_log_likelihood(terms, observed, stay), axis=-1))
