@@ -18,15 +18,32 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
+import math
 import warnings
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 from numpyro.infer.hmc import hmc
 from numpyro.infer.util import constrain_fn, potential_energy
 
-__all__ = ["sample_nuts", "quiet_single_chain"]
+from jaxgaze.results import RESULTS
+
+__all__ = ["sample_nuts", "laplace_inverse_mass", "mixing_diagnostics", "mixing_result", "posterior_summary",
+           "quiet_single_chain", "MAX_RHAT", "MIN_ESS", "MAX_DIVERGENT_SHARE", "MIN_ACCEPTANCE", "HDI_PROB"]
+
+#: Diagnostics every NUTS posterior must pass (:func:`mixing_result`): split r-hat at most this …
+MAX_RHAT = 1.05
+#: … bulk and tail ESS at least this …
+MIN_ESS = 100
+#: … at most this share of divergent transitions …
+MAX_DIVERGENT_SHARE = 0.01
+#: … and a mean acceptance probability of at least this (the step size adapts towards 0.8–0.9;
+#: a chain that never moved has 0).
+MIN_ACCEPTANCE = 0.5
+#: The credible level of the HDIs in every posterior summary.
+HDI_PROB = 0.9
 
 #: The progress bar advances every this many iterations.
 REPORT_EVERY = 25
@@ -39,13 +56,15 @@ def _report(iteration):
         bar.update(max(0, base + int(np.max(iteration)) - bar.n))
 
 
-def _one_chain(model, key, model_args, init_params, num_warmup, num_samples, dense_mass, target_accept_prob):
+def _one_chain(model, key, model_args, init_params, inverse_mass_matrix, num_warmup, num_samples, dense_mass,
+               target_accept_prob):
     def potential_fn_gen(*args):
         return functools.partial(potential_energy, model, args, {})
 
     init_kernel, sample_kernel = hmc(potential_fn_gen=potential_fn_gen, algo="NUTS")
-    state = init_kernel(init_params, num_warmup, dense_mass=dense_mass, target_accept_prob=target_accept_prob,
-                        model_args=model_args, rng_key=key)
+    state = init_kernel(init_params, num_warmup, inverse_mass_matrix=inverse_mass_matrix,
+                        adapt_mass_matrix=inverse_mass_matrix is None, dense_mass=dense_mass,
+                        target_accept_prob=target_accept_prob, model_args=model_args, rng_key=key)
 
     def step(s, i):
         s = sample_kernel(s, model_args=model_args)
@@ -63,8 +82,10 @@ def _one_chain(model, key, model_args, init_params, num_warmup, num_samples, den
 
 
 @functools.partial(jax.jit, static_argnames=("model", "num_warmup", "num_samples", "dense_mass", "target_accept_prob"))
-def _single(model, key, model_args, init_params, num_warmup, num_samples, dense_mass, target_accept_prob):
-    return _one_chain(model, key, model_args, init_params, num_warmup, num_samples, dense_mass, target_accept_prob)
+def _single(model, key, model_args, init_params, inverse_mass_matrix, num_warmup, num_samples, dense_mass,
+            target_accept_prob):
+    return _one_chain(model, key, model_args, init_params, inverse_mass_matrix, num_warmup, num_samples, dense_mass,
+                      target_accept_prob)
 
 
 def sample_nuts(
@@ -76,6 +97,7 @@ def sample_nuts(
     num_warmup: int,
     num_samples: int,
     dense_mass: bool = False,
+    inverse_mass_matrix=None,
     target_accept_prob: float = 0.8,
     progress_bar: bool = False,
     description: str = "NUTS",
@@ -97,6 +119,12 @@ def sample_nuts(
             arrays with leading axis ``B`` (e.g. ``log σ`` for a positive site).
         num_warmup, num_samples: NUTS adaptation and kept iterations per chain.
         dense_mass, target_accept_prob: as in ``numpyro.infer.NUTS``.
+        inverse_mass_matrix: ``None`` (start from the identity and adapt the mass matrix
+            in the warm-up windows), or ``(B, D, D)`` (``(B, D)`` diagonal) per chain, over
+            the parameters flattened in ``jax.tree_util`` order, kept fixed while the
+            step size adapts. A good one, such as the inverse Hessian of the potential
+            at the mode, saves the warm-up's early windows, which with the identity take
+            hundreds of leapfrog steps per draw on a badly scaled posterior.
         progress_bar: show a tqdm bar over all iterations of all chains.
 
     Returns:
@@ -110,6 +138,12 @@ def sample_nuts(
     if len(sizes) != 1:
         raise ValueError(f"model_args and init_params need one common leading batch axis, got sizes {sorted(sizes)}")
     batch = sizes.pop()
+    if inverse_mass_matrix is not None:
+        inverse_mass_matrix = jnp.asarray(inverse_mass_matrix)
+        D = sum(int(np.prod(np.shape(a)[1:])) for a in jax.tree_util.tree_leaves(init_params))
+        wanted = (batch, D, D) if dense_mass else (batch, D)
+        if inverse_mass_matrix.shape != wanted:
+            raise ValueError(f"inverse_mass_matrix must have shape {wanted}, got {inverse_mass_matrix.shape}")
     keys = jax.random.split(key, batch)
     per_chain = int(num_warmup) + int(num_samples)
     from tqdm.auto import tqdm
@@ -120,13 +154,111 @@ def sample_nuts(
             for b in range(batch):
                 _progress = (bar, b * per_chain) if progress_bar else None
                 pick = functools.partial(jax.tree_util.tree_map, lambda a: a[b])
-                runs.append(_single(model, keys[b], pick(model_args), pick(init_params), int(num_warmup),
+                mass = None if inverse_mass_matrix is None else inverse_mass_matrix[b]
+                runs.append(_single(model, keys[b], pick(model_args), pick(init_params), mass, int(num_warmup),
                                     int(num_samples), bool(dense_mass), float(target_accept_prob)))
             runs = jax.block_until_ready(runs)
             jax.effects_barrier()
         finally:
             _progress = None
     return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *runs)
+
+
+def laplace_inverse_mass(potential_fn, params: dict, min_curvature: float):
+    """NUTS's inverse mass matrix from the curvature of the potential at ``params``: a Laplace covariance.
+
+    With ``H = V diag(λ) Vᵀ`` the Hessian of ``potential_fn`` (the negative log
+    density, numpyro's unconstrained space) at ``params``, it returns
+    ``V diag(1 / max(|λ|, λ_min)) Vᵀ`` over ``params`` flattened in ``jax.tree_util``
+    order, the order :func:`sample_nuts` expects. At a mode this is the posterior's
+    covariance to second order, so NUTS needs no warm-up windows to learn the
+    scales. Where ``params`` is not a mode, a negative curvature's magnitude still
+    gives the local length scale (as Betancourt's SoftAbs metric does); curvatures
+    below ``min_curvature`` in magnitude are raised to it, and a non-finite Hessian
+    gives the identity.
+    """
+    flat, unravel = ravel_pytree(params)
+    hessian = jax.hessian(lambda x: potential_fn(unravel(x)))(flat)
+    curvature, axes = jnp.linalg.eigh(0.5 * (hessian + hessian.T))
+    inverse = (axes / jnp.maximum(jnp.abs(curvature), min_curvature)) @ axes.T
+    return jnp.where(jnp.all(jnp.isfinite(hessian)), inverse, jnp.eye(flat.shape[0], dtype=flat.dtype))
+
+
+def _split_chains(posterior):
+    """Each chain split in halves, as chains of their own: split r-hat from a single chain (arviz needs two)."""
+    import arviz as az
+
+    n = posterior.sizes["draw"] // 2
+    halves = {v: posterior[v].values[:, : 2 * n].reshape((-1, n) + posterior[v].shape[2:])
+              for v in posterior.data_vars}
+    dims = {v: list(posterior[v].dims[2:]) for v in posterior.data_vars}
+    coords = {d: posterior.coords[d].values for names in dims.values() for d in names if d in posterior.coords}
+    return az.convert_to_dataset(halves, dims=dims, coords=coords)
+
+
+def mixing_diagnostics(idata, var_names) -> dict:
+    """Whether a NUTS run mixed: split r-hat, bulk and tail ESS (arviz), divergences and acceptance.
+
+    ``idata`` is an ``arviz.InferenceData`` with ``posterior`` ``(chain, draw, …)`` and
+    ``sample_stats`` holding ``diverging`` and ``acceptance_rate``; ``var_names``
+    are the posterior's variables to check. r-hat is arviz's rank-normalised split
+    r-hat of the chains split in halves, so it exists for a single chain too. A
+    variable that never moved within a chain has no ESS (0; arviz would give a
+    constant chain the full ESS) and its r-hat is NaN. Returns ``max_rhat``,
+    ``min_ess_bulk``, ``min_ess_tail``, ``divergences``, ``draws`` (all chains),
+    ``chains`` and ``acceptance_rate`` (the mean); :func:`mixing_result` judges them.
+    """
+    import arviz as az
+
+    posterior = idata.posterior[[v for v in var_names if v in idata.posterior]]
+    if not posterior.data_vars:
+        raise ValueError(f"none of {list(var_names)} is in the posterior")
+    with quiet_single_chain(1), np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # arviz divides by a zero variance on a stuck chain
+        rhat = az.rhat(_split_chains(posterior))
+        bulk = az.ess(posterior, method="bulk")
+        tail = az.ess(posterior, method="tail")
+
+    def worst(ds, pick):  # NaN (a variable that never moved) wins: it must fail the checks
+        values = np.concatenate([np.ravel(ds[v].values) for v in ds.data_vars])
+        return math.nan if np.isnan(values).any() else float(pick(values))
+
+    stuck = any(np.any(np.ptp(posterior[v].values, axis=1) == 0) for v in posterior.data_vars)
+    stats = idata.sample_stats
+    diverging = np.asarray(stats["diverging"].values, bool)
+    return {"max_rhat": math.nan if stuck else worst(rhat, np.max),
+            "min_ess_bulk": 0.0 if stuck else worst(bulk, np.min),
+            "min_ess_tail": 0.0 if stuck else worst(tail, np.min),
+            "divergences": int(diverging.sum()), "draws": int(diverging.size), "chains": int(posterior.sizes["chain"]),
+            "acceptance_rate": float(np.mean(stats["acceptance_rate"].values))}
+
+
+def mixing_result(diagnostics: dict) -> RESULTS:
+    """``RESULTS.not_mixed`` unless every check of :func:`mixing_diagnostics` passes (NaN fails)."""
+    mixed = (diagnostics["max_rhat"] <= MAX_RHAT and diagnostics["min_ess_bulk"] >= MIN_ESS
+             and diagnostics["min_ess_tail"] >= MIN_ESS
+             and diagnostics["divergences"] <= MAX_DIVERGENT_SHARE * diagnostics["draws"]
+             and diagnostics["acceptance_rate"] >= MIN_ACCEPTANCE)
+    return RESULTS.successful if mixed else RESULTS.not_mixed
+
+
+def posterior_summary(idata, var_names):
+    """``az.summary`` of ``var_names``: mean, sd, the 90% HDI, MCSE, bulk and tail ESS and split r-hat.
+
+    r-hat is that of the chains split in halves (:func:`mixing_diagnostics`), so a
+    single chain has one; a variable that never moved has no ESS (0) and a NaN r-hat.
+    """
+    import arviz as az
+
+    with quiet_single_chain(1), np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        table = az.summary(idata, var_names=list(var_names), hdi_prob=HDI_PROB)
+        split = az.summary(_split_chains(idata.posterior[list(var_names)]), kind="diagnostics")
+    table["r_hat"] = split["r_hat"].reindex(table.index)
+    never_moved = table["sd"] == 0  # arviz gives a constant chain the full ESS
+    table.loc[never_moved, ["ess_bulk", "ess_tail"]] = 0.0
+    table.loc[never_moved, "r_hat"] = np.nan
+    return table
 
 
 @contextlib.contextmanager

@@ -32,26 +32,28 @@ from jaxgaze.joint.data import JointData
 from jaxgaze.joint.init import JointStart, directions_to_people, joint_start
 from jaxgaze.joint.model import (BLOCK_FRAMES, JointPrior, ModelArrays, concurrence_locations, eye_positions,
                                  joint_model, target_marginals)
-from jaxgaze.nuts import quiet_single_chain, sample_nuts
+from jaxgaze.nuts import (MAX_DIVERGENT_SHARE, MAX_RHAT, MIN_ESS, laplace_inverse_mass, mixing_diagnostics,
+                          mixing_result, sample_nuts)
 from jaxgaze.rays import GazeRays
 from jaxgaze.results import RESULTS, name, throw_if_failed
 
 __all__ = ["JointPosterior", "fit_joint", "mean_field_guide", "MAX_RHAT", "MIN_ESS", "MAX_DIVERGENT_SHARE", "METHODS"]
 
-#: Diagnostics a run must pass: split r-hat at most this (a single chain is split in halves) …
-MAX_RHAT = 1.05
-#: … bulk and tail ESS at least this …
-MIN_ESS = 100
-#: … and at most this share of divergent transitions.
-MAX_DIVERGENT_SHARE = 0.01
 #: Inference methods of :func:`fit_joint`.
 METHODS = ("nuts", "svi")
 _SUMMARY_SITES = ("bias", "cone_width", "alpha_person", "alpha_object", "speaker_effect", "stay",
                   "concurrence_locations", "eye_offset")
 #: Draws used for the membership probabilities and the predictive check.
 _MAX_PROBABILITY_DRAWS = 200
+#: Two free concurrences closer than this (metres) in every window after the start's refinement are one
+#: target (:func:`_twin_concurrences`): gaze cannot tell them apart, as a cone of 4° is 10 cm wide at 1.5 m.
+TWIN_DISTANCE = 0.15
 #: BFGS steps of the start's refinement (:func:`_refine_start`).
 _REFINE_STEPS = 300
+#: The least curvature magnitude of the potential that NUTS's mass matrix takes (:func:`_laplace_inverse_mass`);
+#: the weakest prior curvature is about 0.1 (a logit of sd 3), so only a direction the start is no mode in
+#: is raised to it.
+_MIN_CURVATURE = 0.01
 
 
 @functools.lru_cache(maxsize=None)
@@ -96,35 +98,75 @@ def _unconstrained(values: dict) -> dict:
     return out
 
 
-@functools.partial(jax.jit, static_argnames=("prior",))
-def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior) -> dict:
-    """The posterior mode of the model with independent frames (``ρ = 10⁻⁶``), from the pipeline's start.
-
-    A start far from the truth (a pipeline bias tens of degrees off) puts the sticky
-    chain in a local mode where a person's whole recording is a held glance
-    elsewhere; with independent frames every gaze still pulls the bias towards its
-    nearest candidate, so the mode of that model is in the right basin. BFGS in
-    numpyro's unconstrained space; a failed or non-finite search keeps the start.
-    Wearers' eye offsets stay at Park's calibration: the mode of the eye's depth along
-    the primary ray is not where the truth is (see ``JointPrior.eye_offset_scale``),
-    and NUTS explores it from Park's estimate.
-    """
-    kept = {k: v for k, v in start.items() if k in ("stay", "eye_offset", "calibration_outlier_share")}
-    start = {k: v for k, v in start.items() if k not in kept}
-    held = {"stay": jnp.asarray(1e-6, arrays.gaze_angles.dtype)}
-    if "eye_offset" in kept:
-        held["eye_offset"] = kept["eye_offset"]
-        held["calibration_outlier_share"] = jax.nn.sigmoid(kept["calibration_outlier_share"])
-    independent = handlers.condition(_model(prior, None), held)
-    flat, unravel = ravel_pytree(start)
+def _descend(model, params: dict, arrays: ModelArrays) -> dict:
+    """BFGS on ``model``'s potential from ``params`` (unconstrained); a failed, non-finite or uphill search keeps ``params``."""
+    flat, unravel = ravel_pytree(params)
 
     def energy(x, _):
-        return potential_energy(independent, tuple(arrays), {}, unravel(x))
+        return potential_energy(model, tuple(arrays), {}, unravel(x))
 
     solution = optx.minimise(energy, optx.BFGS(rtol=1e-6, atol=1e-6), flat, max_steps=_REFINE_STEPS, throw=False)
     x = solution.value
     better = jnp.all(jnp.isfinite(x)) & (energy(x, None) <= energy(flat, None))
-    return {**unravel(jnp.where(better, x, flat)), **kept}
+    return unravel(jnp.where(better, x, flat))
+
+
+@functools.partial(jax.jit, static_argnames=("prior",))
+def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior) -> dict:
+    """The pipeline's start moved to a mode of the model, in two descents (BFGS, numpyro's unconstrained space).
+
+    1. The mode of the model with independent frames (``ρ = 10⁻⁶``). A start far from
+       the truth (a pipeline bias tens of degrees off) puts the sticky chain in a local
+       mode where a person's whole recording is a held glance elsewhere; with
+       independent frames every gaze still pulls the bias towards its nearest
+       candidate, so the mode of that model is in the right basin.
+    2. From there, the mode of the model itself (``ρ`` free). Its Hessian is NUTS's
+       mass matrix (:func:`_laplace_inverse_mass`); the first mode can be a saddle of
+       this model, with a strongly negative curvature along a concurrence, and no
+       mass matrix taken there fits the posterior.
+
+    Wearers' eye offsets stay at Park's calibration: the mode of the eye's depth
+    along the primary ray is not where the truth is (see
+    ``JointPrior.eye_offset_scale``), and NUTS explores it from Park's estimate. With
+    wearers the second descent is skipped: from its point, with the eyes held, NUTS
+    drifts to the eyes' far mode.
+    """
+    kept = {k: v for k, v in start.items() if k in ("eye_offset", "calibration_outlier_share")}
+    held = {}
+    if "eye_offset" in kept:
+        held["eye_offset"] = kept["eye_offset"]
+        held["calibration_outlier_share"] = jax.nn.sigmoid(kept["calibration_outlier_share"])
+    free = {k: v for k, v in start.items() if k not in kept and k != "stay"}
+    independent = handlers.condition(_model(prior, None), {**held, "stay": jnp.asarray(1e-6, arrays.gaze_angles.dtype)})
+    free = {**_descend(independent, free, arrays), "stay": start["stay"]}
+    if kept:  # wearers: NUTS learns its mass matrix in the warm-up, and sets off from the first mode
+        return {**free, **kept}
+    return _descend(_model(prior, None), free, arrays)
+
+
+def _twin_concurrences(unconstrained: dict, centres, prior: JointPrior) -> list[int]:
+    """Free concurrences that the refined start puts on top of an earlier one (within :data:`TWIN_DISTANCE` in
+    every window): the same target, found twice by the pipeline. Two slots on one target share its gazes
+    between them, and the posterior has no mode (NUTS takes ~150 leapfrog steps a draw); the later (less
+    supported) one is dropped."""
+    if "concurrence_offset" not in unconstrained:
+        return []
+    locations = np.asarray(concurrence_locations(unconstrained, jnp.asarray(centres, unconstrained["bias"].dtype),
+                                                 prior))  # (W, K, 3)
+    distance = np.linalg.norm(locations[:, :, None] - locations[:, None], axis=-1).max(axis=0)  # (K, K)
+    return [k for k in range(distance.shape[0]) if np.any(distance[k, :k] < TWIN_DISTANCE)]
+
+
+@functools.partial(jax.jit, static_argnames=("prior",))
+def _laplace_inverse_mass(start: dict, arrays: ModelArrays, prior: JointPrior):
+    """NUTS's inverse mass matrix: the inverse Hessian of the potential at the refined start (its mode).
+
+    The posterior's scales differ by a factor of 100 (a bias of 0.1° against a
+    logit); from the identity, NUTS's first warm-up windows take 150–180 leapfrog
+    steps per draw, from this matrix 7–8, and no window is spent learning it.
+    """
+    potential = functools.partial(potential_energy, _model(prior, None), tuple(arrays), {})
+    return laplace_inverse_mass(potential, start, _MIN_CURVATURE)
 
 
 def _params(draw: dict, centres, prior: JointPrior) -> dict:
@@ -196,8 +238,8 @@ class JointPosterior(NamedTuple):
         idata: ``arviz.InferenceData`` (posterior, sample_stats, observed_data).
         result: a :class:`~jaxgaze.results.RESULTS` item (``not_mixed`` when the
             diagnostics fail; ``max_steps_reached`` for an SVI run still improving).
-        diagnostics: ``max_rhat``, ``min_ess_bulk``, ``min_ess_tail``, ``divergences``,
-            ``draws`` and, for SVI, ``elbo_change``.
+        diagnostics: NUTS: :func:`jaxgaze.nuts.mixing_diagnostics` (split r-hat, bulk and
+            tail ESS, divergences, acceptance); SVI: ``elbo_change`` and its noise.
         method: ``"nuts"`` or ``"svi"``.
         people: names; fps: frames per second.
         membership: ``(T, P, C)`` posterior ``P(z_ti = j)`` given the whole recording
@@ -302,44 +344,6 @@ class JointPosterior(NamedTuple):
         return (counts >= min_members).sum(axis=1)
 
 
-def _split_chains(posterior):
-    """A single chain split into halves, for split r-hat (arviz needs two chains)."""
-    import arviz as az
-
-    n = posterior.sizes["draw"] // 2
-    halves = {v: posterior[v].values[0, : 2 * n].reshape((2, n) + posterior[v].shape[2:]) for v in posterior.data_vars}
-    return az.convert_to_dataset(halves)
-
-
-def _diagnostics(idata, diverging: np.ndarray) -> dict:
-    import arviz as az
-
-    posterior = idata.posterior[[s for s in _SUMMARY_SITES if s in idata.posterior]]
-    with quiet_single_chain(posterior.sizes["chain"]):
-        split = _split_chains(posterior) if posterior.sizes["chain"] == 1 else posterior
-        rhat = az.rhat(split)
-        bulk = az.ess(posterior, method="bulk")
-        tail = az.ess(posterior, method="tail")
-
-    def worst(ds, pick):  # NaN (a site that never moved) wins: it must fail the checks
-        values = np.concatenate([np.ravel(ds[v].values) for v in ds.data_vars])
-        return math.nan if np.isnan(values).any() else float(pick(values))
-
-    # arviz gives a constant chain the full ESS; a site that never moved has none
-    stuck = any(np.any(np.ptp(posterior[v].values, axis=1) == 0) for v in posterior.data_vars)
-    return {"max_rhat": worst(rhat, np.max), "min_ess_bulk": 0.0 if stuck else worst(bulk, np.min),
-            "min_ess_tail": 0.0 if stuck else worst(tail, np.min), "divergences": int(np.sum(diverging)),
-            "draws": int(diverging.size)}
-
-
-def _verdict(diagnostics: dict) -> RESULTS:
-    """``not_mixed`` unless every check passes; a NaN r-hat or ESS (a chain that never moved) fails."""
-    mixed = (diagnostics["max_rhat"] <= MAX_RHAT and diagnostics["min_ess_bulk"] >= MIN_ESS
-             and diagnostics["min_ess_tail"] >= MIN_ESS
-             and diagnostics["divergences"] <= MAX_DIVERGENT_SHARE * diagnostics["draws"])
-    return RESULTS.successful if mixed else RESULTS.not_mixed
-
-
 def _inference_data(samples: dict, stats: dict | None, data: JointData, K: int):
     import arviz as az
 
@@ -391,8 +395,12 @@ def fit_joint(
             also taken from the SVI posterior).
         prior: a :class:`JointPrior`.
         start: the pipeline's answer to start from (default :func:`joint_start`). It is
-            first refined to the mode of the model with independent frames (BFGS; the
-            wearers' eye offsets are kept), then sampled or fitted from there.
+            first moved to the mode of the model with independent frames, then to the
+            mode of the model itself (BFGS; the wearers' eye offsets are kept), and
+            sampled or fitted from there. NUTS uses the inverse Hessian of the
+            potential there as its mass matrix, fixed (only the step size adapts in
+            the warm-up); with wearers of head-mounted cameras, whose eyes the start
+            holds, it learns the mass matrix in the warm-up windows instead.
         progress: progress bars on stderr.
         throw: raise :class:`~jaxgaze.results.FitError` instead of returning a
             failed ``result``.
@@ -414,24 +422,35 @@ def fit_joint(
         raise ValueError(f"start has eye offsets of {start.eye_offset.shape[0]} wearers, the data "
                          f"{len(data.wearers)}; build it with joint_start")
     dtype = jnp.result_type(float)
-    arrays = _arrays(data, start.concurrence_centres, dtype)
-    values = _start_values(start, prior, data.num_people)
-    K = start.num_concurrences
 
-    unconstrained = _refine_start({k: jnp.asarray(v, dtype) for k, v in _unconstrained(values).items()}, arrays,
-                                  prior)
+    def refined(start):
+        arrays = _arrays(data, start.concurrence_centres, dtype)
+        values = _unconstrained(_start_values(start, prior, data.num_people))
+        return arrays, _refine_start({k: jnp.asarray(v, dtype) for k, v in values.items()}, arrays, prior)
+
+    arrays, unconstrained = refined(start)
+    twins = _twin_concurrences(unconstrained, start.concurrence_centres, prior)
+    if twins:
+        keep = [k for k in range(start.num_concurrences) if k not in twins]
+        start = start._replace(concurrence_centres=start.concurrence_centres[:, keep],
+                               concurrence_support=start.concurrence_support[keep])
+        arrays, unconstrained = refined(start)
+    K = start.num_concurrences
     if method == "nuts":
         model = _model(prior, None)
         batched = lambda a: jnp.broadcast_to(jnp.asarray(a), (num_chains,) + jnp.shape(a))  # noqa: E731
         init = {k: batched(v) for k, v in unconstrained.items()}
+        # With wearers the start is no mode (their eyes are held at Park's calibration, where the
+        # potential curves down along the eye's depth): their mass matrix is learnt in the warm-up.
+        mass = None if data.wearers else batched(_laplace_inverse_mass(unconstrained, arrays, prior))
         draws, stats = sample_nuts(model, k_fit, tuple(batched(a) for a in arrays), init,
-                                   num_warmup=int(num_warmup), num_samples=int(num_samples),
-                                   dense_mass=True, progress_bar=progress, description="joint NUTS")
+                                   num_warmup=int(num_warmup), num_samples=int(num_samples), dense_mass=True,
+                                   inverse_mass_matrix=mass, progress_bar=progress, description="joint NUTS")
         draws = {k: np.asarray(v) for k, v in draws.items()}
         stats = {k: np.asarray(v) for k, v in stats.items()}
         idata = _inference_data(draws, stats, data, K)
-        diagnostics = _diagnostics(idata, stats["diverging"])
-        result = _verdict(diagnostics)
+        diagnostics = mixing_diagnostics(idata, _SUMMARY_SITES)
+        result = mixing_result(diagnostics)
     else:
         draws, result, diagnostics = _svi(data, arrays, unconstrained, prior, k_fit, k_draws, int(num_steps),
                                           int(frames_per_step), float(learning_rate), int(num_samples), progress)

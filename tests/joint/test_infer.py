@@ -88,7 +88,8 @@ def test_outputs_are_consistent_probabilities(scene, fitted):
 
 def test_result_code_follows_the_diagnostics(fitted):
     d = fitted.diagnostics
-    passes = d["max_rhat"] <= 1.05 and min(d["min_ess_bulk"], d["min_ess_tail"]) >= 100 and d["divergences"] <= 2
+    passes = (d["max_rhat"] <= 1.05 and min(d["min_ess_bulk"], d["min_ess_tail"]) >= 100 and d["divergences"] <= 2
+              and d["acceptance_rate"] >= 0.5)
     assert fitted.succeeded == passes
     assert fitted.result == (RESULTS.successful if passes else RESULTS.not_mixed)
 
@@ -162,3 +163,20 @@ def test_head_mounted_calibration_is_inferred_with_the_recording(scene, fitted):
     park_error = np.linalg.norm(fitted.start.eye_offset - truth, axis=-1)  # Park's calibration alone
     assert np.all(joint_error < 0.08) and np.all(joint_error < park_error)
     assert fitted.idata.posterior["eye_offset"].shape[-2:] == (2, 3)
+
+
+def test_twin_concurrences_are_found_in_every_window():
+    """Two slots the refined start puts within TWIN_DISTANCE of each other in every window are one target."""
+    from jaxgaze.joint.infer import TWIN_DISTANCE, JointPrior, _twin_concurrences
+
+    centres = np.array([[[0.0, 0, 0.8], [0.5, 0, 0.8], [0.5, 0.1, 0.8], [1.5, 0, 0.8]],
+                        [[0.0, 0, 0.8], [0.5, 0, 0.8], [0.9, 0.1, 0.8], [1.5, 0, 0.8]]])  # (W=2, K=4, 3)
+    prior = JointPrior()
+    zero = {"bias": np.zeros((3, 2)), "concurrence_offset": np.zeros((4, 3)), "concurrence_drift": np.zeros((2, 4, 3))}
+    # slot 2 is 10 cm from slot 1 in window 0 but 40 cm in window 1: not a twin
+    assert 0.1 < TWIN_DISTANCE and _twin_concurrences(zero, centres, prior) == []
+    # moved onto slot 0 by the offset (in both windows), slot 3 is a twin of slot 0
+    moved = dict(zero, concurrence_offset=np.array([[0, 0, 0], [0, 0, 0], [0, 0, 0], [-1.5 / prior.location_scale,
+                                                                                         0.02, 0]]))
+    assert _twin_concurrences(moved, centres, prior) == [3]
+    assert _twin_concurrences({"bias": np.zeros((3, 2))}, centres[:, :0], prior) == []
