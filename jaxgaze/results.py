@@ -63,7 +63,12 @@ class RESULTS(eqx.Enumeration):
     )
     not_mixed = (
         "the sampler did not mix: split r-hat above 1.05, bulk or tail ESS below 100, or more than 1% divergent "
-        "transitions; the draws are not a reliable posterior; run more warm-up and draws, or check the data"
+        "transitions, or a mean acceptance below 0.5; the draws are not a reliable posterior; run more warm-up "
+        "and draws, or check the data"
+    )
+    implausible = (
+        "the estimate is physically implausible (an eye centre more than 0.3 m from its head-mounted camera); "
+        "check that positions are in metres and that the inputs belong together"
     )
 
 
@@ -80,6 +85,7 @@ NAMES = (
     "behind_camera",
     "collinear_through_camera",
     "not_mixed",
+    "implausible",
 )
 
 

@@ -24,6 +24,7 @@ from jaxgaze.calibration.cone_fit import (
     DEFAULT_REGULARIZATION,
     DEFAULT_INLIER_THRESHOLD,
     DEFAULT_RANSAC_ITERATIONS,
+    MAX_APEX_DISTANCE,
 )
 from jaxgaze.calibration.posterior import (
     calibration_model,
@@ -31,6 +32,7 @@ from jaxgaze.calibration.posterior import (
     calibrate_cone_posterior,
     calibrate_cone_posterior_batch,
     CalibrationPosterior,
+    MAX_EYE_OFFSET,
 )
 
 __all__ = [
@@ -41,9 +43,11 @@ __all__ = [
     "DEFAULT_REGULARIZATION",
     "DEFAULT_INLIER_THRESHOLD",
     "DEFAULT_RANSAC_ITERATIONS",
+    "MAX_APEX_DISTANCE",
     "calibration_model",
     "calibration_log_likelihood",
     "calibrate_cone_posterior",
     "calibrate_cone_posterior_batch",
     "CalibrationPosterior",
+    "MAX_EYE_OFFSET",
 ]

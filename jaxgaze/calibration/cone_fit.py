@@ -64,6 +64,7 @@ __all__ = [
     "DEFAULT_REGULARIZATION",
     "DEFAULT_INLIER_THRESHOLD",
     "DEFAULT_RANSAC_ITERATIONS",
+    "MAX_APEX_DISTANCE",
 ]
 
 #: λ of eq. 2, in 1/metre.
@@ -72,6 +73,10 @@ DEFAULT_REGULARIZATION = 0.05
 DEFAULT_INLIER_THRESHOLD = 0.15
 #: Number of 2-point RANSAC hypotheses.
 DEFAULT_RANSAC_ITERATIONS = 256
+#: The farthest from the camera (metres) that ``jaxgaze calibrate`` accepts the apex of eq. 2. The apex is
+#: loose along the primary ray (sliding along it leaves the ray's line unchanged), so this bound is looser
+#: than the posterior's ``MAX_EYE_OFFSET``; it catches millimetres and pose files that do not belong together.
+MAX_APEX_DISTANCE = 1.0
 
 _BISECTION_STEPS = 80
 _MIN_POINTS = 3

@@ -37,8 +37,9 @@ from jaxtyping import Array, Bool, Float, PRNGKeyArray
 from jaxgaze.cone import cone_log_density
 from jaxgaze.geometry import angle_between, unit
 from jaxgaze._checks import bucket_size
-from jaxgaze.nuts import quiet_single_chain, sample_nuts
+from jaxgaze.nuts import mixing_diagnostics, mixing_result, posterior_summary, quiet_single_chain, sample_nuts
 from jaxgaze.rays import GazeRays
+from jaxgaze.results import RESULTS, throw_if_failed
 
 if TYPE_CHECKING:  # arviz is imported when a posterior is summarised: it is slow to import
     import arviz as az
@@ -49,7 +50,13 @@ __all__ = [
     "calibrate_cone_posterior",
     "calibrate_cone_posterior_batch",
     "CalibrationPosterior",
+    "MAX_EYE_OFFSET",
 ]
+
+#: The farthest a wearer's eye centre can plausibly be from the head-mounted camera (metres); a
+#: posterior mean beyond it is ``RESULTS.implausible``.
+MAX_EYE_OFFSET = 0.3
+_SUMMARY_VARS = ["eye_center", "direction", "bandwidth", "outlier_share"]
 
 
 def _points(points) -> np.ndarray:
@@ -128,13 +135,18 @@ class CalibrationPosterior(NamedTuple):
 
     Attributes:
         idata: ``arviz.InferenceData`` (posterior, sample stats, observed points).
-        summary: ``az.summary`` table (mean, sd, HDI, ESS, r-hat) of the main parameters.
+        summary: ``az.summary`` table (mean, sd, 90% HDI, bulk and tail ESS, split r-hat) of
+            the main parameters (:func:`jaxgaze.nuts.posterior_summary`).
         eye_center, direction: posterior means, camera frame (direction renormalised).
         bandwidth: posterior mean of ``h`` (radians).
         samples: dict of posterior draws (``eye_center (S,3)``, ``direction (S,3)``, ``bandwidth (S,)``, …).
         predictive_check: dict with the observed mean whitened distance ``‖d‖/h`` of
             the inliers and its posterior-predictive distribution (``observed``, ``replicated``,
             ``p_value``), a check that the cone spread fits the data.
+        result: ``RESULTS.successful``; ``implausible`` when the mean eye centre is more
+            than :data:`MAX_EYE_OFFSET` from the camera, else ``not_mixed`` when the
+            sampler failed its checks (:func:`jaxgaze.nuts.mixing_result`).
+        diagnostics: :func:`jaxgaze.nuts.mixing_diagnostics` of the run.
     """
 
     idata: "az.InferenceData"
@@ -144,6 +156,12 @@ class CalibrationPosterior(NamedTuple):
     bandwidth: float
     samples: dict
     predictive_check: dict
+    result: RESULTS = RESULTS.successful
+    diagnostics: dict | None = None
+
+    @property
+    def succeeded(self) -> bool:
+        return bool(self.result == RESULTS.successful)
 
     def credible_radii(self, level: float = 0.9) -> tuple[float, float]:
         """Radii of the ``level`` credible regions, centred on the posterior means.
@@ -190,6 +208,7 @@ def calibrate_cone_posterior(
     init_eye_center=None,
     init_direction=None,
     progress_bar: bool = False,
+    throw: bool = False,
     **model_options,
 ) -> CalibrationPosterior:
     """Sample one wearer's calibration posterior with NUTS, summarised by arviz (Park et al. 2012, Sec. 3.2).
@@ -198,12 +217,15 @@ def calibrate_cone_posterior(
     (metres). ``init_*`` (e.g. from the RANSAC point estimate) start the chains
     near the mode; by default they start at the camera centre looking along +x.
     ``model_options`` go to :func:`calibration_model`. For many wearers at once use
-    :func:`calibrate_cone_posterior_batch` (one compiled, vectorised run).
+    :func:`calibrate_cone_posterior_batch` (one compiled, vectorised run). A run that
+    did not mix, or an implausible eye centre, is the posterior's ``result``
+    (``throw=False``) or a :class:`~jaxgaze.results.FitError` (``throw=True``).
     """
     y = _points(points)
     init_eye = None if init_eye_center is None else np.asarray(init_eye_center, float)[None]
     init_dir = None if init_direction is None else np.asarray(init_direction, float)[None]
-    return _fit([y], key, num_warmup, num_samples, num_chains, init_eye, init_dir, progress_bar, model_options)[0]
+    posterior = _fit([y], key, num_warmup, num_samples, num_chains, init_eye, init_dir, progress_bar, model_options)[0]
+    return throw_if_failed(posterior, posterior.result, "calibrate_cone_posterior") if throw else posterior
 
 
 def calibrate_cone_posterior_batch(
@@ -216,6 +238,7 @@ def calibrate_cone_posterior_batch(
     init_eye_centers=None,
     init_directions=None,
     progress_bar: bool = False,
+    throw: bool = False,
     **model_options,
 ) -> list[CalibrationPosterior]:
     """:func:`calibrate_cone_posterior` for ``W`` wearers in one vectorised NUTS run (Park et al. 2012, Sec. 3.2).
@@ -223,7 +246,8 @@ def calibrate_cone_posterior_batch(
     ``points`` is ``(W, M, 3)`` or a list of ``W`` arrays ``(M_w, 3)`` (padded and
     masked internally). ``init_eye_centers``/``init_directions`` are ``(W, 3)`` or
     ``None``. Wearer ``w``'s chains use keys split from ``key``; the result is one
-    :class:`CalibrationPosterior` per wearer, in order.
+    :class:`CalibrationPosterior` per wearer, in order, each with its own ``result``;
+    ``throw=True`` raises on the first that failed.
     """
     ys = [_points(y) for y in (points if isinstance(points, (list, tuple)) else np.asarray(points, float))]
     if not ys:
@@ -231,10 +255,13 @@ def calibrate_cone_posterior_batch(
     for name, init in (("init_eye_centers", init_eye_centers), ("init_directions", init_directions)):
         if init is not None and np.shape(init) != (len(ys), 3):
             raise ValueError(f"{name} must have shape ({len(ys)}, 3), got {np.shape(init)}")
-    return _fit(ys, key, num_warmup, num_samples, num_chains,
-                None if init_eye_centers is None else np.asarray(init_eye_centers, float),
-                None if init_directions is None else np.asarray(init_directions, float),
-                progress_bar, model_options)
+    posteriors = _fit(ys, key, num_warmup, num_samples, num_chains,
+                      None if init_eye_centers is None else np.asarray(init_eye_centers, float),
+                      None if init_directions is None else np.asarray(init_directions, float),
+                      progress_bar, model_options)
+    for w, posterior in enumerate(posteriors if throw else ()):
+        throw_if_failed(posterior, posterior.result, f"calibrate_cone_posterior_batch (wearer {w})")
+    return posteriors
 
 
 @functools.lru_cache(maxsize=8)
@@ -294,17 +321,23 @@ def _fit(ys, key, num_warmup, num_samples, num_chains, init_eye, init_dir, progr
                       "points": ["point", "axis"]},
                 coords={"axis": ["x", "y", "z"], "point": np.arange(m)},
             )
-            summary = az.summary(idata, var_names=["eye_center", "direction", "bandwidth", "outlier_share"])
+        summary = posterior_summary(idata, _SUMMARY_VARS)
+        diagnostics = mixing_diagnostics(idata, _SUMMARY_VARS)
         samples = {k: v.reshape((-1,) + v.shape[2:]) for k, v in draws.items()}
         direction_mean = samples["direction"].mean(0)
+        eye_center = samples["eye_center"].mean(0)
+        plausible = np.linalg.norm(eye_center) <= MAX_EYE_OFFSET
+        result = mixing_result(diagnostics) if plausible else RESULTS.implausible
         posteriors.append(CalibrationPosterior(
             idata=idata,
             summary=summary,
-            eye_center=samples["eye_center"].mean(0),
+            eye_center=eye_center,
             direction=direction_mean / np.linalg.norm(direction_mean),
             bandwidth=float(samples["bandwidth"].mean()),
             samples=samples,
             predictive_check=_predictive_check(check_keys[w], jnp.asarray(y, dtype), samples),
+            result=result,
+            diagnostics=diagnostics,
         ))
     return posteriors
 

@@ -7,7 +7,7 @@ summary line``: :mod:`~jaxgaze.cli.demo` (a simulated meeting against the truth)
 gaze bias, Siegfried et al. 2017), :mod:`~jaxgaze.cli.joint` (biases, cone widths, who looks at whom
 and concurrences of a group, inferred together), :mod:`~jaxgaze.cli.attend` and
 :mod:`~jaxgaze.cli.fit_gaze` (attention from head pose, Yücel et al. 2013). Exit status 0 on
-success (``joint``: 1 when its fit did not succeed, files written); 2 for bad input, with one line
+success (``joint`` and ``calibrate --posterior``: 1 when the fit did not succeed, files written); 2 for bad input, with one line
 ``jaxgaze: error: <what> (<file>:<line>)`` on stderr and no partial output file; 130 on Ctrl-C.
 """
 

@@ -4,9 +4,9 @@ Park et al. 2012, Sec. 3.2) from a session in which A looks at B's head-mounted 
 from __future__ import annotations
 
 import argparse
-import logging
 import math
 import os
+import sys
 
 from jaxgaze.cli._common import CommandError, check_output, int_at_least, summary, writing
 
@@ -31,7 +31,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--out", required=True, metavar="CALIB.json", help="output JSON (replaced only on success)")
     parser.add_argument("--posterior", default=None, metavar="POSTERIOR.nc",
                         help="also sample the Bayesian posterior (NUTS, started at the point estimate), write "
-                             "its arviz InferenceData to this NetCDF file and a summary into the JSON")
+                             "its arviz InferenceData to this NetCDF file and a summary into the JSON; exit status 1 "
+                             "when the sampler did not mix or the eye centre is implausible (files written)")
     parser.add_argument("--samples", type=int_at_least(1), default=DEFAULT_SAMPLES, metavar="N",
                         help=f"NUTS warm-up steps and draws for --posterior (default {DEFAULT_SAMPLES})")
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default 0)")
@@ -43,31 +44,25 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _posterior(args, points, fit, key):
-    """NUTS from the point estimate; arviz's one-chain r-hat message is kept off stderr."""
+    """NUTS from the point estimate (its diagnostics and summaries keep arviz's messages off stderr)."""
     import jax
     import numpy as np
 
-    import arviz
-
     from jaxgaze.calibration.posterior import calibrate_cone_posterior
 
-    arviz_log = getattr(arviz, "_log", None) or logging.getLogger("arviz")
-    level = arviz_log.level
-    arviz_log.setLevel(logging.ERROR)
     try:
         return calibrate_cone_posterior(points, key=jax.random.fold_in(key, 1), num_warmup=args.samples,
                                         num_samples=args.samples, init_eye_center=np.asarray(fit.eye_center),
                                         init_direction=np.asarray(fit.direction))
     except ValueError as error:
         raise CommandError(f"posterior sampling failed: {error}", args.poses_a) from None
-    finally:
-        arviz_log.setLevel(level)
 
 
 def run(args) -> int:
     import jax
+    import numpy as np
 
-    from jaxgaze.calibration.cone_fit import calibrate_cone
+    from jaxgaze.calibration import MAX_APEX_DISTANCE, calibrate_cone
     from jaxgaze.io.calibration import write_calibration_json
     from jaxgaze.io.poses import read_poses
     from jaxgaze.poses import match_frames, points_of_regard
@@ -97,11 +92,25 @@ def run(args) -> int:
         raise CommandError(f"calibration failed: {error}", args.poses_a) from None
     if not bool(fit.succeeded):
         raise CommandError(f"calibration failed: {fit.message}", args.poses_a)
+    distance = float(np.linalg.norm(np.asarray(fit.eye_center)))
+    if not distance <= MAX_APEX_DISTANCE:
+        raise CommandError(f"calibration failed: the eye centre is {distance:.3g} m from the camera, more than "
+                           f"{MAX_APEX_DISTANCE:g} m (positions in millimetres, or pose files that do not belong "
+                           "together?)", args.poses_a)
     posterior = None if args.posterior is None else _posterior(args, points, fit, key)
 
     with writing(args.out, also={args.posterior: "posterior"}):
         record = write_calibration_json(args.out, wearer, fit, posterior=posterior, posterior_path=args.posterior,
                                         num_warmup=args.samples)
+    if posterior is not None and not posterior.succeeded:
+        from jaxgaze.results import RESULTS
+
+        d = posterior.diagnostics
+        print(f"jaxgaze calibrate: the posterior failed: {RESULTS[posterior.result]} (split r-hat "
+              f"{d['max_rhat']:.3g}, bulk ESS {d['min_ess_bulk']:.0f}, {d['divergences']} of {d['draws']} divergent, "
+              f"acceptance {d['acceptance_rate']:.2f}; eye centre {np.linalg.norm(posterior.eye_center):.2f} m from "
+              f"the camera); written to {args.out} and {args.posterior} for inspection", file=sys.stderr)
+        return 1
     d = record["direction"]
     summary(args, f"calibrated '{wearer}' from {record['num_points']} frame(s), {record['num_inliers']} inlier(s): "
                   f"eye centre ({', '.join(f'{x:.3f}' for x in record['eye_center'])}) m, "

@@ -21,7 +21,7 @@ from jaxgaze.calibration.cone_fit import ConeCalibration
 from jaxgaze.io.poses import WearerPoses
 from jaxgaze.io.rays import RayRecording, stack_rays
 from jaxgaze.io.text import InputFileError, atomic_path, read_text
-from jaxgaze.results import RESULTS
+from jaxgaze.results import NAMES, RESULTS, code
 
 __all__ = ["CALIBRATION_KEYS", "WearerCalibration", "read_calibration_json", "write_calibration_json",
            "calibrated_rays"]
@@ -112,10 +112,9 @@ def read_calibration_json(path) -> WearerCalibration:
     return WearerCalibration(wearer.strip(), cone, path)
 
 
-def _finite_extreme(values, pick):
-    """``pick`` (min or max) of the finite values, or ``None`` (r-hat of one chain is NaN)."""
-    finite = [float(v) for v in np.asarray(values, dtype=float).ravel() if math.isfinite(float(v))]
-    return pick(finite) if finite else None
+def _finite_or_none(value):
+    """A finite float, or ``None`` (JSON has no NaN): an r-hat of a chain that never moved."""
+    return float(value) if value is not None and math.isfinite(float(value)) else None
 
 
 def write_calibration_json(path, wearer: str, cone: ConeCalibration, *, posterior=None, posterior_path=None,
@@ -126,7 +125,11 @@ def write_calibration_json(path, wearer: str, cone: ConeCalibration, *, posterio
     ``num_inliers`` (from ``cone.inliers``) and ``method``. With ``posterior`` (a
     :class:`~jaxgaze.calibration.posterior.CalibrationPosterior`) its InferenceData is
     written to ``posterior_path`` (NetCDF) and a summary goes under ``"posterior"``
-    (means, the largest finite r-hat, the smallest bulk ESS, draws, ``num_warmup``).
+    (its ``result`` name, means, the mixing diagnostics — largest split r-hat, smallest
+    bulk and tail ESS, divergences, acceptance — and under ``"parameters"`` each
+    parameter's mean, sd, 90% HDI, ESS and r-hat; ``null`` where undefined; draws,
+    ``num_warmup``). A posterior that failed is written all the same: the caller
+    reports its ``result``.
     Both files are written atomically, and the NetCDF only together with the JSON.
     A NetCDF back-end failure is an ``OSError`` naming ``posterior_path``.
     """
@@ -149,13 +152,19 @@ def write_calibration_json(path, wearer: str, cone: ConeCalibration, *, posterio
         with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as handle:
             handle.write(json.dumps(record, indent=2, allow_nan=False) + "\n")
         return record
-    summary = posterior.summary
+    diagnostics = posterior.diagnostics
     record["posterior"] = {
+        "result": NAMES[int(np.asarray(code(posterior.result)))],
         "eye_center_mean": [float(x) for x in posterior.eye_center],
         "direction_mean": [float(x) for x in posterior.direction],
         "bandwidth_mean": float(posterior.bandwidth),
-        "r_hat_max": _finite_extreme(summary["r_hat"], max),
-        "ess_bulk_min": _finite_extreme(summary["ess_bulk"], min),
+        "r_hat_max": _finite_or_none(diagnostics["max_rhat"]),
+        "ess_bulk_min": _finite_or_none(diagnostics["min_ess_bulk"]),
+        "ess_tail_min": _finite_or_none(diagnostics["min_ess_tail"]),
+        "divergences": int(diagnostics["divergences"]),
+        "acceptance_rate": _finite_or_none(diagnostics["acceptance_rate"]),
+        "parameters": {str(row): {str(column): _finite_or_none(value) for column, value in values.items()}
+                       for row, values in posterior.summary.to_dict(orient="index").items()},
         "num_samples": int(posterior.idata.posterior.sizes["draw"]),
         "num_warmup": None if num_warmup is None else int(num_warmup),
         "file": os.path.basename(os.fspath(posterior_path)),

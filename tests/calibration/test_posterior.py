@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import jaxgaze as jg
-from jaxgaze.calibration.posterior import calibrate_cone_posterior
+from jaxgaze.calibration.posterior import MAX_EYE_OFFSET, calibrate_cone_posterior
+from jaxgaze.results import RESULTS, FitError
 from jaxgaze.cone import sample_points_of_regard
 
 TRUE_EYE = np.array([-0.08, 0.01, -0.10])
@@ -14,14 +15,14 @@ TRUE_DIRECTION = np.asarray(jg.geometry.unit(jnp.array([1.0, 0.12, -0.05])))
 TRUE_H = 0.03
 
 
-def wearer_points(key, n=120, outlier_fraction=0.0):
+def wearer_points(key, n=120, outlier_fraction=0.0, eye=TRUE_EYE):
     """Points of regard in the camera frame drawn from the true cone, plus outliers."""
     k_depth, k_cone, k_out = jax.random.split(key, 3)
-    rays = jg.GazeRays(np.tile(TRUE_EYE, (n, 1)), np.tile(TRUE_DIRECTION, (n, 1)), TRUE_H)
+    rays = jg.GazeRays(np.tile(eye, (n, 1)), np.tile(TRUE_DIRECTION, (n, 1)), TRUE_H)
     depth = jax.random.uniform(k_depth, (n,), minval=1.0, maxval=4.0)
     y = np.array(sample_points_of_regard(k_cone, rays, depth))
     m = int(outlier_fraction * n)
-    y[:m] = TRUE_EYE + np.asarray(jax.random.uniform(k_out, (m, 3), minval=-2.0, maxval=2.0)) + [2.5, 0, 0]
+    y[:m] = eye + np.asarray(jax.random.uniform(k_out, (m, 3), minval=-2.0, maxval=2.0)) + [2.5, 0, 0]
     return y
 
 
@@ -55,10 +56,36 @@ def test_credible_intervals_contain_truth(posterior):
 
 def test_diagnostics_and_predictive_check(posterior):
     summary = posterior.summary
-    assert {"mean", "sd", "ess_bulk", "r_hat"} <= set(summary.columns)
+    assert {"mean", "sd", "hdi_5%", "hdi_95%", "ess_bulk", "ess_tail", "r_hat"} <= set(summary.columns)
     assert summary["ess_bulk"].min() > 50
+    assert np.all(summary["r_hat"] < 1.05)  # split r-hat: defined for the one chain
+    assert posterior.succeeded and posterior.result == RESULTS.successful
+    assert posterior.diagnostics["chains"] == 1 and posterior.diagnostics["max_rhat"] < 1.05
     assert "posterior" in posterior.idata.groups()
     assert 0.05 < posterior.predictive_check["p_value"] < 0.95
+
+
+FAR_EYE = np.array([-1.0, 0.02, -0.05])  # a metre behind the camera: no head-mounted camera sits there
+
+
+def test_a_sampler_that_never_moved_is_a_failure():
+    """Started at the camera centre, a metre from the cone's apex, NUTS never accepts a step."""
+    y = wearer_points(jax.random.key(0), eye=FAR_EYE)
+    post = calibrate_cone_posterior(y, key=jax.random.key(1), num_warmup=300, num_samples=300)
+    assert post.result == RESULTS.not_mixed and not post.succeeded
+    d = post.diagnostics
+    assert d["acceptance_rate"] < 0.5 and d["min_ess_bulk"] == 0 and np.isnan(d["max_rhat"])
+    assert np.all(post.summary["ess_bulk"] == 0)  # arviz alone gives a constant chain the full ESS
+    with pytest.raises(FitError, match="did not mix"):
+        calibrate_cone_posterior(y, key=jax.random.key(1), num_warmup=300, num_samples=300, throw=True)
+
+
+def test_an_eye_centre_far_from_the_camera_is_implausible():
+    y = wearer_points(jax.random.key(0), eye=FAR_EYE)
+    post = calibrate_cone_posterior(y, key=jax.random.key(1), num_warmup=300, num_samples=300,
+                                    init_eye_center=FAR_EYE, init_direction=TRUE_DIRECTION)
+    assert np.linalg.norm(post.eye_center) > MAX_EYE_OFFSET
+    assert post.result == RESULTS.implausible
 
 
 def test_outliers_are_absorbed():

@@ -70,7 +70,7 @@ def test_calibrate_with_posterior(session, tmp_path, capsys):
     out, post = tmp_path / "calib.json", tmp_path / "posterior.nc"
     status, stdout, stderr = run_main(
         capsys, ["calibrate", session["a"], session["b"], "--out", out, "--posterior", post,
-                 "--samples", "50", "--seed", "0", "--wearer", "ann"])
+                 "--seed", "0", "--wearer", "ann"])  # the default 500 warm-up steps and draws
     assert status == 0, stderr
     assert stdout == ""
     assert len(stderr.splitlines()) == 1 and stderr.startswith("jaxgaze: calibrated 'ann' from 80 frame(s)")
@@ -88,12 +88,44 @@ def test_calibrate_with_posterior(session, tmp_path, capsys):
     assert angle_deg(summary["direction_mean"], session["dir_a"]) < 2.0
     assert perpendicular_error(summary["eye_center_mean"], session["eye_a"], session["dir_a"]) < 0.04
     assert 0.005 < summary["bandwidth_mean"] < 0.1
-    assert summary["r_hat_max"] is None or math.isfinite(summary["r_hat_max"])  # one chain: no r-hat
-    assert summary["ess_bulk_min"] > 0
+    assert summary["result"] == "successful"
+    assert summary["r_hat_max"] < 1.05  # split r-hat of the one chain
+    assert summary["ess_bulk_min"] >= 100 and summary["ess_tail_min"] >= 100 and summary["divergences"] <= 3
+    for name in ("eye_center[x]", "direction[y]", "bandwidth", "outlier_share"):
+        row = summary["parameters"][name]
+        assert row["hdi_5%"] <= row["mean"] <= row["hdi_95%"] and row["sd"] > 0 and row["r_hat"] < 1.05
 
     idata = arviz.from_netcdf(post)
-    assert idata.posterior["eye_center"].shape[:2] == (1, 50)
-    assert idata.posterior["bandwidth"].shape == (1, 50)
+    assert idata.posterior["eye_center"].shape[:2] == (1, 500)
+    assert idata.posterior["bandwidth"].shape == (1, 500)
+
+
+def test_calibrate_posterior_that_did_not_mix_exits_1(session, tmp_path, capsys):
+    """50 draws cannot give 100 effective ones: the command says so (one line, status 1), files written."""
+    out, post = tmp_path / "calib.json", tmp_path / "posterior.nc"
+    status, stdout, stderr = run_main(
+        capsys, ["calibrate", session["a"], session["b"], "--out", out, "--posterior", post, "--samples", "50"])
+    assert status == 1 and stdout == ""
+    lines = stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("jaxgaze calibrate: the posterior failed: the sampler did not mix")
+    assert "bulk ESS" in lines[0] and "RuntimeWarning" not in stderr
+    summary = json.loads(out.read_text())["posterior"]
+    assert summary["result"] == "not_mixed" and summary["ess_bulk_min"] < 100
+    assert sorted(os.listdir(tmp_path)) == ["calib.json", "posterior.nc"]
+
+
+def test_calibrate_in_millimetres_is_refused(session, tmp_path, capsys):
+    """Positions in millimetres put the eye centre metres from the camera: status 2, named."""
+    directory = tmp_path / "mm"
+    directory.mkdir()
+    for name in ("a", "b"):
+        poses = session[f"poses_{name}"]
+        write_pose_csv(directory / f"{name}.csv", CameraPoses(poses.R_camera_from_world, 1000 * poses.centers,
+                                                              poses.frame_ids))
+    out = tmp_path / "c.json"
+    status, stdout, stderr = run_main(capsys, ["calibrate", directory / "a.csv", directory / "b.csv", "--out", out])
+    assert_failed(status, stdout, stderr, "m from the camera", "millimetres")
+    assert not out.exists()
 
 
 def test_calibrate_point_estimate_colmap_wearer(session, tmp_path, capsys):
@@ -221,10 +253,12 @@ def test_calibrate_posterior_written_only_with_the_json(session, tmp_path, capsy
 
     def fake_posterior(points, **kwargs):
         idata = arviz.from_dict(posterior={"bandwidth": np.full((2, 5), 0.03)})
-        summary = pd.DataFrame({"r_hat": [1.01, np.nan], "ess_bulk": [40.0, 12.0]})
+        summary = pd.DataFrame({"mean": [0.03], "r_hat": [1.01], "ess_bulk": [120.0]}, index=["bandwidth"])
+        diagnostics = {"max_rhat": 1.01, "min_ess_bulk": 120.0, "min_ess_tail": 110.0, "divergences": 0,
+                       "draws": 10, "chains": 2, "acceptance_rate": 0.8}
         return calibration_posterior.CalibrationPosterior(
             idata, summary, np.asarray(kwargs["init_eye_center"]), np.asarray(kwargs["init_direction"]), 0.03,
-            {}, {})
+            {}, {}, diagnostics=diagnostics)
 
     monkeypatch.setattr(calibration_posterior, "calibrate_cone_posterior", fake_posterior)
     out, post = tmp_path / "c.json", tmp_path / "p.nc"
@@ -232,7 +266,8 @@ def test_calibrate_posterior_written_only_with_the_json(session, tmp_path, capsy
                                           "--posterior", post, "-q"])
     assert status == 0, stderr
     summary = json.loads(out.read_text())["posterior"]
-    assert summary["r_hat_max"] == 1.01 and summary["ess_bulk_min"] == 12.0
+    assert summary["r_hat_max"] == 1.01 and summary["ess_bulk_min"] == 120.0
+    assert summary["parameters"] == {"bandwidth": {"mean": 0.03, "r_hat": 1.01, "ess_bulk": 120.0}}
     assert arviz.from_netcdf(post).posterior["bandwidth"].shape == (2, 5)
     out.unlink()
     post.unlink()
