@@ -119,6 +119,11 @@ class ConeCalibration(NamedTuple):
         """Human-readable outcome (``RESULTS[result]``; concrete calibrations only)."""
         return RESULTS[self.result]
 
+    @property
+    def eye_distance(self) -> Array:
+        """The eye centre's distance from the camera centre (metres; per wearer when batched)."""
+        return jnp.linalg.norm(self.eye_center, axis=-1)
+
     def to_gaze_rays(self, R_world_from_camera, camera_centers) -> GazeRays:
         """Primary gaze rays in the world frame, one per camera pose (item 4).
 

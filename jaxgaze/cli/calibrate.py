@@ -60,7 +60,6 @@ def _posterior(args, points, fit, key):
 
 def run(args) -> int:
     import jax
-    import numpy as np
 
     from jaxgaze.calibration import MAX_APEX_DISTANCE, calibrate_cone
     from jaxgaze.io.calibration import write_calibration_json
@@ -92,7 +91,7 @@ def run(args) -> int:
         raise CommandError(f"calibration failed: {error}", args.poses_a) from None
     if not bool(fit.succeeded):
         raise CommandError(f"calibration failed: {fit.message}", args.poses_a)
-    distance = float(np.linalg.norm(np.asarray(fit.eye_center)))
+    distance = float(fit.eye_distance)
     if not distance <= MAX_APEX_DISTANCE:
         raise CommandError(f"calibration failed: the eye centre is {distance:.3g} m from the camera, more than "
                            f"{MAX_APEX_DISTANCE:g} m (positions in millimetres, or pose files that do not belong "
@@ -108,8 +107,8 @@ def run(args) -> int:
         d = posterior.diagnostics
         print(f"jaxgaze calibrate: the posterior failed: {RESULTS[posterior.result]} (split r-hat "
               f"{d['max_rhat']:.3g}, bulk ESS {d['min_ess_bulk']:.0f}, {d['divergences']} of {d['draws']} divergent, "
-              f"acceptance {d['acceptance_rate']:.2f}; eye centre {np.linalg.norm(posterior.eye_center):.2f} m from "
-              f"the camera); written to {args.out} and {args.posterior} for inspection", file=sys.stderr)
+              f"acceptance {d['acceptance_rate']:.2f}); written to {args.out} and {args.posterior} for inspection",
+              file=sys.stderr)
         return 1
     d = record["direction"]
     summary(args, f"calibrated '{wearer}' from {record['num_points']} frame(s), {record['num_inliers']} inlier(s): "
