@@ -29,7 +29,8 @@ from jaxtyping import Array, Float
 from jaxgaze.gp.exact import FittedGP, check_training_data, factorise, gaussian_log_marginal_likelihood, predict_from_factor
 from jaxgaze.gp.kernels import Kernel
 from jaxgaze.gp.transforms import positive
-from jaxgaze.nuts import quiet_single_chain, sample_nuts
+from jaxgaze.nuts import mixing_diagnostics, mixing_result, quiet_single_chain, sample_nuts
+from jaxgaze.results import RESULTS
 
 __all__ = ["HyperparameterPosterior", "hyperparameter_model", "sample_hyperparameter_posterior"]
 
@@ -82,6 +83,10 @@ class HyperparameterPosterior(NamedTuple):
         inference_data: ``arviz.InferenceData`` of the run (posterior of the natural
             hyperparameters, sample stats), for ``az.summary`` / ``az.plot_trace``.
         divergences: number of divergent transitions after warm-up.
+        result: ``RESULTS.successful``, or ``not_mixed`` when the run failed the shared
+            checks (:func:`jaxgaze.nuts.mixing_result`: split r-hat, bulk and tail ESS,
+            divergences, acceptance).
+        diagnostics: :func:`jaxgaze.nuts.mixing_diagnostics` of the run.
     """
 
     kernels: Kernel
@@ -90,6 +95,12 @@ class HyperparameterPosterior(NamedTuple):
     y: Float[Array, " n"]
     inference_data: object
     divergences: int
+    result: RESULTS = RESULTS.successful
+    diagnostics: dict | None = None
+
+    @property
+    def succeeded(self) -> bool:
+        return bool(self.result == RESULTS.successful)
 
     def predict(self, X_new: Float[Array, "m D"], *, max_draws: int = 100) -> tuple[Array, Array]:
         """Mean and variance at ``X_new`` (Yücel et al. 2013, eq. 12–13), averaged over draws.
@@ -180,4 +191,5 @@ def sample_hyperparameter_posterior(
             posterior={n: v[None] for n, v in samples.items()},
             sample_stats={k: np.asarray(v)[:1] for k, v in stats.items()},
         )
-    return HyperparameterPosterior(draws, samples, X, y, idata, divergences)
+    diagnostics = mixing_diagnostics(idata, names)
+    return HyperparameterPosterior(draws, samples, X, y, idata, divergences, mixing_result(diagnostics), diagnostics)

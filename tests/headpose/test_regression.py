@@ -15,6 +15,7 @@ from jaxgaze.gp import kernels
 from jaxgaze.papers.yucel2013 import evaluate_regression, format_cogsci_table, format_table_i
 from jaxgaze.gp.exact import fit, predict
 from jaxgaze.gp.posterior import sample_hyperparameter_posterior
+from jaxgaze.nuts import mixing_result
 from jaxgaze.headpose.regression import fit_gaze_regression, fit_gaze_regression_nn
 from jaxgaze.headpose.features import head_pose_features
 from tests import helpers as zoo
@@ -136,6 +137,11 @@ def test_posterior_covers_true_hyperparameters_and_reports_inference_data(poster
     assert list(summary.index) == list(post.samples)
     assert post.divergences <= 5
     assert summary["ess_bulk"].min() > 30
+    # the shared mixing checks: the result follows them, and a 250-draw run of 3 hyperparameters passes
+    d = post.diagnostics
+    assert d["divergences"] == post.divergences and d["draws"] == 250 and d["chains"] == 1
+    assert post.result == mixing_result(d) and post.succeeded
+    assert np.isfinite(d["max_rhat"]) and d["min_ess_tail"] >= 100
 
 
 def test_posterior_prediction_is_the_mixture_of_per_draw_predictions(posterior_case, x64):
