@@ -196,6 +196,32 @@ def _split_chains(posterior):
     return az.convert_to_dataset(halves, dims=dims, coords=coords)
 
 
+def _diagnostic_table(posterior):
+    """Per element of ``posterior``: bulk and tail ESS of the chains, and the split r-hat (:func:`_split_chains`).
+
+    An element that never moved within a chain has no ESS (0; arviz would give a
+    constant chain the full ESS) and a NaN r-hat.
+    """
+    import arviz as az
+
+    with quiet_single_chain(1), np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # arviz divides by a zero variance on a stuck chain
+        table = az.summary(posterior, kind="diagnostics")[["ess_bulk", "ess_tail"]]
+        table["r_hat"] = az.summary(_split_chains(posterior), kind="diagnostics")["r_hat"].reindex(table.index)
+    moved = [np.ptp(posterior[v].values, axis=1).reshape(posterior[v].shape[0], -1) for v in posterior.data_vars]
+    never_moved = np.concatenate([np.any(m == 0, axis=0) for m in moved])  # in summary row order
+    table.loc[never_moved, ["ess_bulk", "ess_tail"]] = 0.0
+    table.loc[never_moved, "r_hat"] = np.nan
+    return table
+
+
+def _checked(idata, var_names):
+    posterior = idata.posterior[[v for v in var_names if v in idata.posterior]]
+    if not posterior.data_vars:
+        raise ValueError(f"none of {list(var_names)} is in the posterior")
+    return posterior
+
+
 def mixing_diagnostics(idata, var_names) -> dict:
     """Whether a NUTS run mixed: split r-hat, bulk and tail ESS (arviz), divergences and acceptance.
 
@@ -203,32 +229,18 @@ def mixing_diagnostics(idata, var_names) -> dict:
     ``sample_stats`` holding ``diverging`` and ``acceptance_rate``; ``var_names``
     are the posterior's variables to check. r-hat is arviz's rank-normalised split
     r-hat of the chains split in halves, so it exists for a single chain too. A
-    variable that never moved within a chain has no ESS (0; arviz would give a
-    constant chain the full ESS) and its r-hat is NaN. Returns ``max_rhat``,
-    ``min_ess_bulk``, ``min_ess_tail``, ``divergences``, ``draws`` (all chains),
-    ``chains`` and ``acceptance_rate`` (the mean); :func:`mixing_result` judges them.
+    variable that never moved within a chain has no ESS (0) and a NaN r-hat, which
+    fail the checks. Returns ``max_rhat``, ``min_ess_bulk``, ``min_ess_tail``,
+    ``divergences``, ``draws`` (all chains), ``chains`` and ``acceptance_rate`` (the
+    mean); :func:`mixing_result` judges them.
     """
-    import arviz as az
-
-    posterior = idata.posterior[[v for v in var_names if v in idata.posterior]]
-    if not posterior.data_vars:
-        raise ValueError(f"none of {list(var_names)} is in the posterior")
-    with quiet_single_chain(1), np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # arviz divides by a zero variance on a stuck chain
-        rhat = az.rhat(_split_chains(posterior))
-        bulk = az.ess(posterior, method="bulk")
-        tail = az.ess(posterior, method="tail")
-
-    def worst(ds, pick):  # NaN (a variable that never moved) wins: it must fail the checks
-        values = np.concatenate([np.ravel(ds[v].values) for v in ds.data_vars])
-        return math.nan if np.isnan(values).any() else float(pick(values))
-
-    stuck = any(np.any(np.ptp(posterior[v].values, axis=1) == 0) for v in posterior.data_vars)
+    posterior = _checked(idata, var_names)
+    table = _diagnostic_table(posterior)
+    rhat = table["r_hat"].to_numpy()
     stats = idata.sample_stats
     diverging = np.asarray(stats["diverging"].values, bool)
-    return {"max_rhat": math.nan if stuck else worst(rhat, np.max),
-            "min_ess_bulk": 0.0 if stuck else worst(bulk, np.min),
-            "min_ess_tail": 0.0 if stuck else worst(tail, np.min),
+    return {"max_rhat": math.nan if np.isnan(rhat).any() else float(rhat.max()),
+            "min_ess_bulk": float(table["ess_bulk"].min()), "min_ess_tail": float(table["ess_tail"].min()),
             "divergences": int(diverging.sum()), "draws": int(diverging.size), "chains": int(posterior.sizes["chain"]),
             "acceptance_rate": float(np.mean(stats["acceptance_rate"].values))}
 
@@ -243,22 +255,18 @@ def mixing_result(diagnostics: dict) -> RESULTS:
 
 
 def posterior_summary(idata, var_names):
-    """``az.summary`` of ``var_names``: mean, sd, the 90% HDI, MCSE, bulk and tail ESS and split r-hat.
+    """``az.summary`` of ``var_names``: mean, sd, the 90% HDI, bulk and tail ESS and split r-hat.
 
-    r-hat is that of the chains split in halves (:func:`mixing_diagnostics`), so a
-    single chain has one; a variable that never moved has no ESS (0) and a NaN r-hat.
+    The ESS and r-hat are those :func:`mixing_diagnostics` judges: a single chain
+    has an r-hat, and a variable that never moved has no ESS (0) and a NaN r-hat.
     """
     import arviz as az
 
+    posterior = _checked(idata, var_names)
     with quiet_single_chain(1), np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        table = az.summary(idata, var_names=list(var_names), hdi_prob=HDI_PROB)
-        split = az.summary(_split_chains(idata.posterior[list(var_names)]), kind="diagnostics")
-    table["r_hat"] = split["r_hat"].reindex(table.index)
-    never_moved = table["sd"] == 0  # arviz gives a constant chain the full ESS
-    table.loc[never_moved, ["ess_bulk", "ess_tail"]] = 0.0
-    table.loc[never_moved, "r_hat"] = np.nan
-    return table
+        table = az.summary(posterior, kind="stats", hdi_prob=HDI_PROB)
+    return table.join(_diagnostic_table(posterior))
 
 
 @contextlib.contextmanager

@@ -111,8 +111,8 @@ def _descend(model, params: dict, arrays: ModelArrays) -> dict:
     return unravel(jnp.where(better, x, flat))
 
 
-@functools.partial(jax.jit, static_argnames=("prior",))
-def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior) -> dict:
+@functools.partial(jax.jit, static_argnames=("prior", "to_mode"))
+def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: bool) -> dict:
     """The pipeline's start moved to a mode of the model, in two descents (BFGS, numpyro's unconstrained space).
 
     1. The mode of the model with independent frames (``ρ = 10⁻⁶``). A start far from
@@ -120,16 +120,16 @@ def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior) -> dict:
        mode where a person's whole recording is a held glance elsewhere; with
        independent frames every gaze still pulls the bias towards its nearest
        candidate, so the mode of that model is in the right basin.
-    2. From there, the mode of the model itself (``ρ`` free). Its Hessian is NUTS's
+    2. With ``to_mode``, from there, the mode of the model itself (``ρ`` free). Its Hessian is NUTS's
        mass matrix (:func:`_laplace_inverse_mass`); the first mode can be a saddle of
        this model, with a strongly negative curvature along a concurrence, and no
        mass matrix taken there fits the posterior.
 
     Wearers' eye offsets stay at Park's calibration: the mode of the eye's depth
     along the primary ray is not where the truth is (see
-    ``JointPrior.eye_offset_scale``), and NUTS explores it from Park's estimate. With
-    wearers the second descent is skipped: from its point, with the eyes held, NUTS
-    drifts to the eyes' far mode.
+    ``JointPrior.eye_offset_scale``), and NUTS explores it from Park's estimate.
+    :func:`fit_joint` skips the second descent with wearers: from its point, with the
+    eyes held, NUTS drifts to the eyes' far mode.
     """
     kept = {k: v for k, v in start.items() if k in ("eye_offset", "calibration_outlier_share")}
     held = {}
@@ -139,9 +139,9 @@ def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior) -> dict:
     free = {k: v for k, v in start.items() if k not in kept and k != "stay"}
     independent = handlers.condition(_model(prior, None), {**held, "stay": jnp.asarray(1e-6, arrays.gaze_angles.dtype)})
     free = {**_descend(independent, free, arrays), "stay": start["stay"]}
-    if kept:  # wearers: NUTS learns its mass matrix in the warm-up, and sets off from the first mode
+    if not to_mode:
         return {**free, **kept}
-    return _descend(_model(prior, None), free, arrays)
+    return {**_descend(handlers.condition(_model(prior, None), held), free, arrays), **kept}
 
 
 def _twin_concurrences(unconstrained: dict, centres, prior: JointPrior) -> list[int]:
@@ -422,11 +422,14 @@ def fit_joint(
         raise ValueError(f"start has eye offsets of {start.eye_offset.shape[0]} wearers, the data "
                          f"{len(data.wearers)}; build it with joint_start")
     dtype = jnp.result_type(float)
+    # With wearers the start holds their eyes at Park's calibration, where the potential curves down along
+    # the eye's depth: no mode, so NUTS learns its mass matrix in the warm-up instead of the Laplace one.
+    at_mode = not data.wearers
 
     def refined(start):
         arrays = _arrays(data, start.concurrence_centres, dtype)
         values = _unconstrained(_start_values(start, prior, data.num_people))
-        return arrays, _refine_start({k: jnp.asarray(v, dtype) for k, v in values.items()}, arrays, prior)
+        return arrays, _refine_start({k: jnp.asarray(v, dtype) for k, v in values.items()}, arrays, prior, at_mode)
 
     arrays, unconstrained = refined(start)
     twins = _twin_concurrences(unconstrained, start.concurrence_centres, prior)
@@ -440,9 +443,7 @@ def fit_joint(
         model = _model(prior, None)
         batched = lambda a: jnp.broadcast_to(jnp.asarray(a), (num_chains,) + jnp.shape(a))  # noqa: E731
         init = {k: batched(v) for k, v in unconstrained.items()}
-        # With wearers the start is no mode (their eyes are held at Park's calibration, where the
-        # potential curves down along the eye's depth): their mass matrix is learnt in the warm-up.
-        mass = None if data.wearers else batched(_laplace_inverse_mass(unconstrained, arrays, prior))
+        mass = batched(_laplace_inverse_mass(unconstrained, arrays, prior)) if at_mode else None
         draws, stats = sample_nuts(model, k_fit, tuple(batched(a) for a in arrays), init,
                                    num_warmup=int(num_warmup), num_samples=int(num_samples), dense_mass=True,
                                    inverse_mass_matrix=mass, progress_bar=progress, description="joint NUTS")
