@@ -200,6 +200,9 @@ def solve_cone_apex(
     and ``α_lo`` a tiny fraction of the data scale; if the subgradient is
     already ≥ 0 at ``α_lo`` the infimum is at the boundary α → 0⁺ and α_lo is
     returned. ``ξ = max_i a_i/(b_i+α)``. ``mask`` excludes points. Vmappable.
+
+    Precision: float32 and float64 inputs agree to within 10 µm on α and 1e-5 relative
+    on ξ (``tests/test_precision.py``).
     """
     a = jnp.asarray(a)
     b = jnp.asarray(b)
@@ -438,6 +441,11 @@ def calibrate_cone(
             they are degenerate (coincident or exactly collinear).
 
     Works under ``jit`` and ``vmap`` (value checks then become result codes).
+
+    Precision: float32 and float64 points give the same inliers (barring a point within
+    rounding of the threshold) and agree to within 10 µm on the eye centre and α, 1e-6 rad
+    on the direction and 1e-5 relative on ``h`` and ξ (``tests/test_precision.py``; points
+    of regard 1–4 m away).
     """
     points = jnp.asarray(points)
     if not jnp.issubdtype(points.dtype, jnp.floating):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import warnings
 
 import jax
@@ -16,6 +17,7 @@ from jaxgaze.io.bias_report import BIAS_JSON_FORMAT, bias_record, write_bias_rep
 from jaxgaze.io.gaze import GazeFileError, parse_point, read_gaze, read_targets_csv
 from jaxgaze.io.speech import SpeechFileError, read_rttm, read_segments_csv
 from jaxgaze.io.text import InputFileError, read_text
+from jaxgaze.results import RESULTS
 
 _DESCRIPTION = """\
 Speaker-prior gaze bias adaptation (Siegfried, Odobez et al. 2017). A gaze
@@ -49,7 +51,9 @@ Frame times are the timestamps, else frame / --fps; SEGMENTS uses the same
 clock (seconds). A --targets CSV (frame, tx, ty, tz) must cover every frame.
 
 """ + BIAS_JSON_FORMAT + """\
-Reader warnings (dropped frames, merged speech segments) go to stderr as
+A --method bayes posterior that did not mix (posterior.result not_mixed) is
+written all the same, and the command exits with status 1 and one line on
+stderr. Reader warnings (dropped frames, merged speech segments) go to stderr as
 'jaxgaze: warning: ...' lines and do not fail the command.
 """
 _SAMPLES = 500
@@ -152,6 +156,10 @@ def _speech(args):
         raise CommandError(str(error), args.speech) from None
 
 
+def _number(value) -> str:
+    return "undefined" if value is None else f"{value:.3g}"
+
+
 def run(args) -> int:
     """``jaxgaze bias``: the files → :func:`~jaxgaze.bias.adapt_bias` → BIAS.json (and --per-frame)."""
     if args.method == "lmeds" and args.frames is not None and args.frames < 3:
@@ -192,6 +200,13 @@ def run(args) -> int:
                                  "speech": args.speech, "targets": target_source})
     with writing(args.out):
         write_bias_report(args.out, record, args.per_frame)
+    if not result.estimate.succeeded:
+        d = record["posterior"]
+        print(f"jaxgaze bias: the posterior failed: {RESULTS[result.estimate.result]} (split r-hat "
+              f"{_number(d['r_hat_max'])}, bulk ESS {_number(d['ess_bulk_min'])}, {d['divergences']} of "
+              f"{args.samples} draws divergent, acceptance {_number(d['acceptance_rate'])}); written to {args.out} for "
+              "inspection; try more --samples or --method lmeds", file=sys.stderr)
+        return 1
     spread = "" if record["std_deg"] is None else " ± ({:.2f}°, {:.2f}°)".format(*record["std_deg"])
     summary(args, f"bias (yaw, tilt) = ({record['bias_deg'][0]:+.2f}°, {record['bias_deg'][1]:+.2f}°){spread} "
                   f"({args.method}, {selection.num_selected} of {selection.num_candidates} candidate frames); looking "

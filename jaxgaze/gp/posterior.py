@@ -29,8 +29,8 @@ from jaxtyping import Array, Float
 from jaxgaze.gp.exact import FittedGP, check_training_data, factorise, gaussian_log_marginal_likelihood, predict_from_factor
 from jaxgaze.gp.kernels import Kernel
 from jaxgaze.gp.transforms import positive
-from jaxgaze.nuts import mixing_diagnostics, mixing_result, quiet_single_chain, sample_nuts
-from jaxgaze.results import RESULTS
+from jaxgaze.nuts import mixing_diagnostics, mixing_result, posterior_summary, quiet_single_chain, sample_nuts
+from jaxgaze.results import RESULTS, throw_if_failed
 
 __all__ = ["HyperparameterPosterior", "hyperparameter_model", "sample_hyperparameter_posterior"]
 
@@ -102,6 +102,12 @@ class HyperparameterPosterior(NamedTuple):
     def succeeded(self) -> bool:
         return bool(self.result == RESULTS.successful)
 
+    @property
+    def summary(self):
+        """``az.summary`` of the hyperparameters: mean, sd, 90% HDI, bulk and tail ESS, split r-hat
+        (:func:`jaxgaze.nuts.posterior_summary`)."""
+        return posterior_summary(self.inference_data, list(self.samples))
+
     def predict(self, X_new: Float[Array, "m D"], *, max_draws: int = 100) -> tuple[Array, Array]:
         """Mean and variance at ``X_new`` (Yücel et al. 2013, eq. 12–13), averaged over draws.
 
@@ -142,6 +148,7 @@ def sample_hyperparameter_posterior(
     num_warmup: int = 300,
     num_samples: int = 300,
     progress_bar: bool = False,
+    throw: bool = False,
 ) -> HyperparameterPosterior:
     """Sample ``p(θ | X, y)`` for the trainable hyperparameters of ``kernel`` with NUTS (Yücel et al. 2013, eq. 11).
 
@@ -150,7 +157,9 @@ def sample_hyperparameter_posterior(
     starts at ``start`` (e.g. the :class:`FittedGP` of :func:`jaxgaze.gp.fit`,
     whose optimum sits in the bulk), else at ``θ₀``. One chain, dense mass matrix.
     The cost per leapfrog step is one Cholesky of the ``n × n`` kernel matrix
-    plus its inverse for the gradient, so use a few hundred points.
+    plus its inverse for the gradient, so use a few hundred points. A run that did
+    not mix is the posterior's ``result`` (``RESULTS.not_mixed``, ``throw=False``)
+    or a :class:`~jaxgaze.results.FitError` (``throw=True``).
     """
     import arviz as az
 
@@ -192,4 +201,6 @@ def sample_hyperparameter_posterior(
             sample_stats={k: np.asarray(v)[:1] for k, v in stats.items()},
         )
     diagnostics = mixing_diagnostics(idata, names)
-    return HyperparameterPosterior(draws, samples, X, y, idata, divergences, mixing_result(diagnostics), diagnostics)
+    posterior = HyperparameterPosterior(draws, samples, X, y, idata, divergences, mixing_result(diagnostics),
+                                        diagnostics)
+    return throw_if_failed(posterior, posterior.result, "sample_hyperparameter_posterior") if throw else posterior

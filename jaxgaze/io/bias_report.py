@@ -12,6 +12,7 @@ from typing import Optional
 import numpy as np
 
 from jaxgaze.bias.adapt import BIAS_FRAME_COLUMNS, BiasAdaptation
+from jaxgaze.io.sampler import sampler_record
 from jaxgaze.io.text import atomic_path
 
 __all__ = ["BIAS_JSON_FORMAT", "BIAS_UNITS", "bias_record", "write_bias_report"]
@@ -20,8 +21,11 @@ __all__ = ["BIAS_JSON_FORMAT", "BIAS_UNITS", "bias_record", "write_bias_report"]
 BIAS_JSON_FORMAT = """\
 BIAS.json holds method, bias and bias_deg ([yaw, tilt]; radians, degrees),
 covariance (radians^2) and std_deg (null when unknown), partner, fps, the
-selection (num_candidates, num_selected, selected_frames, inliers; for bayes
-responsibilities and posterior diagnostics), dropped (OpenFace frames dropped,
+selection (num_candidates, num_selected, selected_frames, inliers), for bayes
+"posterior": the responsibilities, whether the sampler mixed (result:
+successful or not_mixed; r_hat_max, the largest split r-hat, ess_bulk_min,
+ess_tail_min, divergences, acceptance_rate) and "parameters", each with mean,
+sd, 90% HDI (hdi_5%, hdi_95%), bulk and tail ESS and r_hat; dropped (OpenFace frames dropped,
 per reason) and "frames", the per-frame table with one list per column:
   frame, time (s), partner_speaking, head_target_angle_deg, selected,
   error_uncorrected_deg and error_deg (angle between the target direction and
@@ -73,6 +77,7 @@ def bias_record(adaptation: BiasAdaptation, *, inputs: Optional[dict] = None, fp
             "num_divergent": int(estimate.posterior.sample_stats["diverging"].sum()),
             "looking_share_mean": float(np.mean(estimate.samples["looking_share"])),
             "responsibilities": _round_list(estimate.responsibilities),
+            **sampler_record(estimate.result, estimate.diagnostics, estimate.summary),
         }
     frames = np.asarray(adaptation.frames)
     return {

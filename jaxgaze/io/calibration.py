@@ -20,8 +20,9 @@ import numpy as np
 from jaxgaze.calibration.cone_fit import ConeCalibration
 from jaxgaze.io.poses import WearerPoses
 from jaxgaze.io.rays import RayRecording, stack_rays
+from jaxgaze.io.sampler import sampler_record
 from jaxgaze.io.text import InputFileError, atomic_path, read_text
-from jaxgaze.results import NAMES, RESULTS, code
+from jaxgaze.results import RESULTS
 
 __all__ = ["CALIBRATION_KEYS", "WearerCalibration", "read_calibration_json", "write_calibration_json",
            "calibrated_rays"]
@@ -112,11 +113,6 @@ def read_calibration_json(path) -> WearerCalibration:
     return WearerCalibration(wearer.strip(), cone, path)
 
 
-def _finite_or_none(value):
-    """A finite float, or ``None`` (JSON has no NaN): an r-hat of a chain that never moved."""
-    return float(value) if value is not None and math.isfinite(float(value)) else None
-
-
 def write_calibration_json(path, wearer: str, cone: ConeCalibration, *, posterior=None, posterior_path=None,
                            num_warmup: Optional[int] = None) -> dict:
     """Write a successful :class:`ConeCalibration` of ``wearer`` as a calibration JSON; returns the record.
@@ -152,19 +148,11 @@ def write_calibration_json(path, wearer: str, cone: ConeCalibration, *, posterio
         with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as handle:
             handle.write(json.dumps(record, indent=2, allow_nan=False) + "\n")
         return record
-    diagnostics = posterior.diagnostics
     record["posterior"] = {
-        "result": NAMES[int(np.asarray(code(posterior.result)))],
         "eye_center_mean": [float(x) for x in posterior.eye_center],
         "direction_mean": [float(x) for x in posterior.direction],
         "bandwidth_mean": float(posterior.bandwidth),
-        "r_hat_max": _finite_or_none(diagnostics["max_rhat"]),
-        "ess_bulk_min": _finite_or_none(diagnostics["min_ess_bulk"]),
-        "ess_tail_min": _finite_or_none(diagnostics["min_ess_tail"]),
-        "divergences": int(diagnostics["divergences"]),
-        "acceptance_rate": _finite_or_none(diagnostics["acceptance_rate"]),
-        "parameters": {str(row): {str(column): _finite_or_none(value) for column, value in values.items()}
-                       for row, values in posterior.summary.to_dict(orient="index").items()},
+        **sampler_record(posterior.result, posterior.diagnostics, posterior.summary),
         "num_samples": int(posterior.idata.posterior.sizes["draw"]),
         "num_warmup": None if num_warmup is None else int(num_warmup),
         "file": os.path.basename(os.fspath(posterior_path)),

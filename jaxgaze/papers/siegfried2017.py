@@ -125,16 +125,11 @@ PAPER_TABLE1 = {
                 "gt_mean": (7.23, 0.84), "gt_med": (7.30, 0.83)},
 }
 
-#: Options of :func:`jaxgaze.bias.estimators.bias_model` used for ``bayes``. The default
-#: "elsewhere" component is centred at ``b`` with a 20° scale; on the simulator the
-#: glances away form one-sided clusters 25°–55° from ``b`` (the desk, the phone, the
-#: table), and a 20° component centred at ``b`` pulls ``b`` toward them by about
-#: ``(n_away / n_looking) (σ / 20°)² · distance`` (1°–3° for the desk preset). A 60°
-#: scale makes that pull 9× smaller and is still far broader than the looking
-#: component (σ ≈ 3°–5°), so the two cannot swap. The tighter noise prior (95% within
-#: ≈ 2°–8° instead of 1.2°–13°) keeps the looking component from widening to swallow a
-#: cluster of glances away when they are nearly half of the frames.
-BAYES_MODEL_OPTIONS = {"elsewhere_scale_deg": 60.0, "noise_scale_spread": 0.35}
+#: Options of :func:`jaxgaze.bias.estimators.bias_model` used for ``bayes``: none, the
+#: evaluation runs the model a user gets. (Its uniform "elsewhere" box exerts no pull on
+#: ``b``, so the simulator's one-sided clusters of glances away, 25°–55° from ``b``, need
+#: no wider component.)
+BAYES_MODEL_OPTIONS: dict = {}
 
 
 def chi2_2dof_quantile(level: float) -> float:

@@ -25,6 +25,10 @@ from jaxgaze.simulate.dyadic import (
     simulate_dyadic,
     simulate_dyadic_sessions,
 )
+from jaxgaze.simulate.offsets import (
+    ContaminatedOffsets,
+    simulate_offsets,
+)
 from jaxgaze.simulate.conversation import (
     ConversationConfig,
     Conversation,
@@ -73,6 +77,8 @@ __all__ = [
     "dyadic_config",
     "simulate_dyadic",
     "simulate_dyadic_sessions",
+    "ContaminatedOffsets",
+    "simulate_offsets",
     "ConversationConfig",
     "Conversation",
     "conversation_config",

@@ -34,6 +34,7 @@ from jaxgaze.bias.looking import (
     target_direction_head,
 )
 from jaxgaze.geometry import axis_angle_to_rotation_matrix, wrap_angle
+from jaxgaze.results import RESULTS, FitError
 
 DEG = math.pi / 180
 CHI2_2DOF_90 = -2 * math.log(0.1)  # 90% quantile of χ²(2)
@@ -390,6 +391,8 @@ def test_update_bias_mean_and_lmeds_refit_on_all_frames():
 
 # ------------------------------------------------------------------------------ bayes
 
+DRAWS = 500  # NUTS warm-up and draws: the estimator's default, enough for 100 tail-effective draws
+
 
 @pytest.fixture(scope="module")
 def bayes_data():
@@ -399,7 +402,7 @@ def bayes_data():
 @pytest.fixture(scope="module")
 def bayes_fit(bayes_data):
     offsets, _ = bayes_data
-    return estimate_bias(offsets, "bayes", key=jax.random.key(12), num_warmup=300, num_samples=300)
+    return estimate_bias(offsets, "bayes", key=jax.random.key(12), num_warmup=DRAWS, num_samples=DRAWS)
 
 
 def test_bayes_recovers_the_bias(bayes_fit):
@@ -427,10 +430,10 @@ def test_bayes_responsibilities(bayes_fit, bayes_data):
 
 def test_bayes_posterior_objects(bayes_fit):
     est = bayes_fit
-    assert est.samples["bias"].shape == (300, 2)
-    assert est.samples["responsibilities"].shape == (300, 60)
+    assert est.samples["bias"].shape == (DRAWS, 2)
+    assert est.samples["responsibilities"].shape == (DRAWS, 60)
     np.testing.assert_allclose(est.bias, est.samples["bias"].mean(0), rtol=1e-6)
-    assert est.posterior.posterior["bias"].shape == (1, 300, 2)
+    assert est.posterior.posterior["bias"].shape == (1, DRAWS, 2)
     assert {"ess_bulk", "r_hat", "mean", "sd"} <= set(est.summary.columns)
     assert est.summary.loc["bias[yaw]", "ess_bulk"] > 50
     assert int(est.posterior.sample_stats["diverging"].sum()) <= 3
@@ -440,10 +443,46 @@ def test_bayes_posterior_objects(bayes_fit):
     assert p[1] > 0.99 and p[2] == 0.0
 
 
+def test_bayes_fit_reports_its_mixing(bayes_fit, bayes_data):
+    est = bayes_fit
+    assert est.succeeded and est.result == RESULTS.successful
+    d = est.diagnostics
+    assert d["chains"] == 1 and d["max_rhat"] < 1.05 and d["min_ess_bulk"] >= 100 and d["acceptance_rate"] > 0.5
+    assert {"mean", "sd", "hdi_5%", "hdi_95%", "ess_bulk", "ess_tail", "r_hat"} <= set(est.summary.columns)
+    assert np.all(np.isfinite(est.summary["r_hat"]))  # split r-hat: defined for one chain
+    row = est.summary.loc["bias[yaw]"]
+    assert row["hdi_5%"] <= TRUE_BIAS[0] <= row["hdi_95%"]
+    assert estimate_bias(bayes_data[0], "lmeds").succeeded
+
+
+def test_a_bias_sampler_that_never_moved_is_a_failure(bayes_data, monkeypatch):
+    """A chain stuck at its start (acceptance 0, every draw the same) is ``not_mixed``; ``throw=True`` raises."""
+    import jaxgaze.bias.estimators as estimators
+
+    real = estimators.sample_nuts
+
+    def stuck(model, key, model_args, init_params, *, num_warmup, num_samples, **options):
+        values, _ = real(model, key, model_args, init_params, num_warmup=num_warmup, num_samples=num_samples,
+                         **options)
+        values = {k: np.repeat(np.asarray(v)[:, :1], num_samples, axis=1) for k, v in values.items()}
+        stats = {"diverging": np.ones((1, num_samples), bool), "acceptance_rate": np.zeros((1, num_samples)),
+                 "n_steps": np.ones((1, num_samples), int), "lp": np.zeros((1, num_samples))}
+        return values, stats
+
+    monkeypatch.setattr(estimators, "sample_nuts", stuck)
+    offsets, _ = bayes_data
+    est = estimate_bias(offsets, "bayes", num_warmup=DRAWS, num_samples=DRAWS)
+    assert not est.succeeded and est.result == RESULTS.not_mixed
+    assert est.diagnostics["min_ess_bulk"] == 0 and np.isnan(est.diagnostics["max_rhat"])
+    assert est.diagnostics["divergences"] == DRAWS
+    with pytest.raises(FitError, match="did not mix"):
+        estimate_bias(offsets, "bayes", num_warmup=DRAWS, num_samples=DRAWS, throw=True)
+
+
 def test_bayes_is_reproducible_and_update_matches_one_shot(bayes_fit, bayes_data):
     offsets, _ = bayes_data
     # The first 40 frames, then 20 more (N = 40 and 60 share one padded compilation).
-    first = estimate_bias(offsets[:40], "bayes", key=jax.random.key(13), num_warmup=300, num_samples=300)
+    first = estimate_bias(offsets[:40], "bayes", key=jax.random.key(13), num_warmup=DRAWS, num_samples=DRAWS)
     assert first.num_frames == 40
     same = update_bias(first, offsets[40:], key=jax.random.key(12))
     np.testing.assert_array_equal(same.samples["bias"], bayes_fit.samples["bias"])  # same data, same key
@@ -452,8 +491,8 @@ def test_bayes_is_reproducible_and_update_matches_one_shot(bayes_fit, bayes_data
     assert np.degrees(np.linalg.norm(updated.bias - bayes_fit.bias)) < 0.3
     np.testing.assert_allclose(np.sqrt(np.diag(updated.covariance)), np.sqrt(np.diag(bayes_fit.covariance)), rtol=0.3)
     # More frames narrow the posterior: 15 frames against 60 (the variance of b scales
-    # like 1/N; 40 against 60 is too close to tell apart from 300 draws).
-    few = estimate_bias(offsets[:15], "bayes", key=jax.random.key(13), num_warmup=300, num_samples=300)
+    # like 1/N; 40 against 60 is too close to tell apart from 500 draws).
+    few = estimate_bias(offsets[:15], "bayes", key=jax.random.key(13), num_warmup=DRAWS, num_samples=DRAWS)
     assert np.trace(bayes_fit.covariance) < 0.7 * np.trace(few.covariance)
 
 

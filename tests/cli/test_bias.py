@@ -33,7 +33,7 @@ from tests import helpers as zoo
 FPS = 10.0
 DURATION_S = 60.0
 NAMES = ("ann", "ben")
-SAMPLES = "200"  # NUTS warm-up steps and draws: enough for a 2-D bias, fast
+SAMPLES = "500"  # NUTS warm-up steps and draws: the default, enough for 100 tail-effective draws
 OPENFACE_HEADER = ("frame", "face_id", "timestamp", "confidence", "success", "gaze_angle_x", "gaze_angle_y",
                    "pose_Tx", "pose_Ty", "pose_Tz", "pose_Rx", "pose_Ry", "pose_Rz", "AU01_r")
 
@@ -196,7 +196,13 @@ def test_bias_csv_bayes(dyad, tmp_path, capsys):
     assert np.allclose(np.degrees(record["bias"]), record["bias_deg"])
     assert all(0 < s < 3 for s in record["std_deg"])
     post = record["posterior"]
-    assert post["num_samples"] == 200 and len(post["responsibilities"]) == 60 and 0.3 < post["looking_share_mean"] < 1
+    assert post["num_samples"] == 500 and len(post["responsibilities"]) == 60 and 0.3 < post["looking_share_mean"] < 1
+    assert post["result"] == "successful" and post["chains"] == 1 and post["r_hat_max"] < 1.05
+    assert post["ess_bulk_min"] >= 100 and post["ess_tail_min"] >= 100 and post["divergences"] <= 5
+    for name in ("bias[yaw]", "bias[tilt]", "noise_scale[yaw]", "looking_share"):
+        row = post["parameters"][name]
+        assert row["hdi_5%"] <= row["mean"] <= row["hdi_95%"] and row["sd"] > 0 and row["r_hat"] < 1.05
+        assert row["ess_bulk"] > 0 and row["ess_tail"] > 0
     assert record["dropped"] == {}
     _check_frames_table(record)
     assert record["frames"]["frame"] == list(range(dyad["num_frames"]))
@@ -457,7 +463,11 @@ def test_bias_help(capsys):
 
 
 def test_bias_progress_bar_on_tty(dyad, tmp_path, capsys, monkeypatch):
-    """The NUTS fit shows a progress bar when stderr is a terminal (not with -q); the sampler is faked: fast."""
+    """The NUTS fit shows a progress bar when stderr is a terminal (not with -q); the sampler is faked: fast.
+
+    Its 8 draws cannot give 100 effective ones: the posterior failed, which the command
+    says in one line (also with -q) and with status 1, the report written all the same.
+    """
     import jaxgaze.bias.estimators as estimators
 
     calls = []
@@ -470,7 +480,7 @@ def test_bias_progress_bar_on_tty(dyad, tmp_path, capsys, monkeypatch):
         return ({"bias": bias + 1e-3 * rng.normal(size=bias.shape), "noise_scale": 0.05 + 1e-3 * rng.random((1, s, 2)),
                  "correlation": 1e-3 * rng.normal(size=(1, s)), "responsibilities": np.full((1, s, n), 0.75),
                  "looking_share": 0.6 + 1e-3 * rng.normal(size=(1, s))},
-                {"diverging": np.zeros((1, s), bool)})
+                {"diverging": np.zeros((1, s), bool), "acceptance_rate": np.full((1, s), 0.8)})
 
     monkeypatch.setattr(estimators, "sample_bias_posterior", fake_posterior)
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
@@ -478,9 +488,13 @@ def test_bias_progress_bar_on_tty(dyad, tmp_path, capsys, monkeypatch):
     for quiet in ([], ["-q"]):
         status, _, stderr = run_main(capsys, ["bias", dyad["gaze"], "--speech", dyad["rttm"], "--partner", "ben",
                                               "--out", out, "--samples", "8", *quiet])
-        assert status == 0, stderr
+        assert status == 1, stderr
+        lines = stderr.splitlines()
+        assert len(lines) == 1 and lines[0].startswith("jaxgaze bias: the posterior failed: the sampler did not mix")
+        assert "bulk ESS" in lines[0] and "--samples" in lines[0] and "RuntimeWarning" not in stderr
     assert [c["progress_bar"] for c in calls] == [True, False]
     assert calls[0]["num_warmup"] == calls[0]["num_samples"] == 8
     record = json.loads(out.read_text())
     assert record["bias_deg"] == pytest.approx(dyad["bias_deg"].tolist(), abs=0.2)
     assert record["posterior"]["num_divergent"] == 0 and record["inliers"] == [True] * 60
+    assert record["posterior"]["result"] == "not_mixed" and record["posterior"]["ess_bulk_min"] < 100

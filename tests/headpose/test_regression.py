@@ -16,6 +16,7 @@ from jaxgaze.papers.yucel2013 import evaluate_regression, format_cogsci_table, f
 from jaxgaze.gp.exact import fit, predict
 from jaxgaze.gp.posterior import sample_hyperparameter_posterior
 from jaxgaze.nuts import mixing_result
+from jaxgaze.results import RESULTS, FitError
 from jaxgaze.headpose.regression import fit_gaze_regression, fit_gaze_regression_nn
 from jaxgaze.headpose.features import head_pose_features
 from tests import helpers as zoo
@@ -142,6 +143,34 @@ def test_posterior_covers_true_hyperparameters_and_reports_inference_data(poster
     assert d["divergences"] == post.divergences and d["draws"] == 250 and d["chains"] == 1
     assert post.result == mixing_result(d) and post.succeeded
     assert np.isfinite(d["max_rhat"]) and d["min_ess_tail"] >= 100
+    table = post.summary  # mean, sd, 90% HDI, ESS and the split r-hat that a single chain has
+    assert {"mean", "sd", "hdi_5%", "hdi_95%", "ess_bulk", "ess_tail", "r_hat"} <= set(table.columns)
+    assert list(table.index) == list(post.samples) and np.all(table["r_hat"] < 1.05)
+    assert np.all(table["hdi_5%"] < table["mean"]) and np.all(table["mean"] < table["hdi_95%"])
+
+
+def test_a_hyperparameter_sampler_that_never_moved_is_a_failure(posterior_case, monkeypatch):
+    """Every draw equal to the first (acceptance 0): ``not_mixed``, and ``throw=True`` raises."""
+    import jaxgaze.gp.posterior as gp_posterior
+
+    real = gp_posterior.sample_nuts
+
+    def stuck(*args, num_samples, **options):
+        values, stats = real(*args, num_samples=num_samples, **options)
+        values = {k: np.repeat(np.asarray(v)[:, :1], num_samples, axis=1) for k, v in values.items()}
+        return values, {**stats, "acceptance_rate": np.zeros((1, num_samples))}
+
+    monkeypatch.setattr(gp_posterior, "sample_nuts", stuck)
+    _, X, y, ml, _, _, _, _ = posterior_case
+    prior = kernels.RBF(variance=1.0, lengthscale=1.0) + kernels.White(variance=0.1)
+    with jax.enable_x64(True):
+        post = sample_hyperparameter_posterior(prior, X, y, key=jax.random.key(4), start=ml, num_warmup=250,
+                                               num_samples=250)
+        assert post.result == RESULTS.not_mixed and not post.succeeded
+        assert post.diagnostics["min_ess_bulk"] == 0 and np.isnan(post.diagnostics["max_rhat"])
+        with pytest.raises(FitError, match="did not mix"):
+            sample_hyperparameter_posterior(prior, X, y, key=jax.random.key(4), start=ml, num_warmup=250,
+                                            num_samples=250, throw=True)
 
 
 def test_posterior_prediction_is_the_mixture_of_per_draw_predictions(posterior_case, x64):
