@@ -67,8 +67,9 @@ class RESULTS(eqx.Enumeration):
         "and draws, or check the data"
     )
     implausible = (
-        "the estimate is physically implausible (an eye centre more than 0.3 m from its head-mounted camera); "
-        "check that positions are in metres and that the inputs belong together"
+        "the estimate is physically implausible (an eye centre farther from its head-mounted camera than a head "
+        "allows: 0.3 m for a posterior mean, 1 m for a point estimate); check that positions are in metres and "
+        "that the inputs belong together"
     )
 
 

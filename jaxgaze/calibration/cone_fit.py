@@ -73,9 +73,10 @@ DEFAULT_REGULARIZATION = 0.05
 DEFAULT_INLIER_THRESHOLD = 0.15
 #: Number of 2-point RANSAC hypotheses.
 DEFAULT_RANSAC_ITERATIONS = 256
-#: The farthest from the camera (metres) that ``jaxgaze calibrate`` accepts the apex of eq. 2. The apex is
-#: loose along the primary ray (sliding along it leaves the ray's line unchanged), so this bound is looser
-#: than the posterior's ``MAX_EYE_OFFSET``; it catches millimetres and pose files that do not belong together.
+#: The farthest from the camera (metres) that :func:`calibrate_cone` accepts the apex of eq. 2; beyond it the
+#: result is ``implausible``. The apex is loose along the primary ray (sliding along it leaves the ray's line
+#: unchanged), so this bound is looser than the posterior's ``MAX_EYE_OFFSET``; it catches millimetres and
+#: pose files that do not belong together.
 MAX_APEX_DISTANCE = 1.0
 
 _BISECTION_STEPS = 80
@@ -93,11 +94,13 @@ class ConeCalibration(NamedTuple):
         xi: ``ξ = max_i a_i/(b_i+α)``, tangent of the cone's half-angle.
         inliers: ``(M,)`` RANSAC inlier mask.
         result: a :class:`jaxgaze.results.RESULTS` item: ``successful``, ``too_few_inliers``,
-            ``degenerate``, ``collinear_through_camera``, ``behind_camera`` or ``nonfinite``
+            ``degenerate``, ``collinear_through_camera``, ``behind_camera``, ``implausible``
+            (the eye centre more than :data:`MAX_APEX_DISTANCE` from the camera) or ``nonfinite``
             (NaN or inf in the points; only reported under jit/vmap, concrete input raises).
 
     On failure (``result != RESULTS.successful``) the geometric fields hold NaN-free placeholders:
-    eye centre 0, direction +x, bandwidth 1, α = ξ = 0 (the inlier mask is kept).
+    eye centre 0, direction +x, bandwidth 1, α = ξ = 0 (the inlier mask is kept); an
+    ``implausible`` fit keeps its estimate, to be inspected.
     Leading batch axes appear when ``calibrate_cone`` is vmapped.
     """
 
@@ -437,7 +440,8 @@ def calibrate_cone(
         ValueError: (always, for concrete input) ``points`` not ``(M, 3)``,
             ``M < 3``, or NaN/inf.
         FitError: (if ``throw``) the points are mostly behind the camera, too
-            few are inliers, they are collinear through the camera centre, or
+            few are inliers, the eye centre is implausibly far from the camera,
+            they are collinear through the camera centre, or
             they are degenerate (coincident or exactly collinear).
 
     Works under ``jit`` and ``vmap`` (value checks then become result codes).
@@ -478,6 +482,8 @@ def calibrate_cone(
         points, key, int(ransac_iterations), float(inlier_threshold), float(regularization),
         float(min_inlier_fraction), float(degenerate_tol),
     )
+    far = (out.result == RESULTS.successful) & (out.eye_distance > MAX_APEX_DISTANCE)
+    out = out._replace(result=RESULTS.where(far, RESULTS.implausible, out.result))
     if throw:
         out = out._replace(eye_center=throw_if_failed(out.eye_center, out.result, "calibrate_cone"))
     return out

@@ -65,6 +65,7 @@ def run(args) -> int:
     from jaxgaze.io.calibration import write_calibration_json
     from jaxgaze.io.poses import read_poses
     from jaxgaze.poses import match_frames, points_of_regard
+    from jaxgaze.results import RESULTS
 
     wearer = (args.wearer if args.wearer is not None else os.path.splitext(os.path.basename(args.poses_a))[0]).strip()
     if not wearer:
@@ -89,21 +90,19 @@ def run(args) -> int:
         fit = calibrate_cone(points, key=key, throw=False)
     except ValueError as error:
         raise CommandError(f"calibration failed: {error}", args.poses_a) from None
-    if not bool(fit.succeeded):
-        raise CommandError(f"calibration failed: {fit.message}", args.poses_a)
-    distance = float(fit.eye_distance)
-    if not distance <= MAX_APEX_DISTANCE:
+    if fit.result == RESULTS.implausible:
+        distance = float(fit.eye_distance)
         raise CommandError(f"calibration failed: the eye centre is {distance:.3g} m from the camera, more than "
                            f"{MAX_APEX_DISTANCE:g} m (positions in millimetres, or pose files that do not belong "
                            "together?)", args.poses_a)
+    if not bool(fit.succeeded):
+        raise CommandError(f"calibration failed: {fit.message}", args.poses_a)
     posterior = None if args.posterior is None else _posterior(args, points, fit, key)
 
     with writing(args.out, also={args.posterior: "posterior"}):
         record = write_calibration_json(args.out, wearer, fit, posterior=posterior, posterior_path=args.posterior,
                                         num_warmup=args.samples)
     if posterior is not None and not posterior.succeeded:
-        from jaxgaze.results import RESULTS
-
         d = posterior.diagnostics
         print(f"jaxgaze calibrate: the posterior failed: {RESULTS[posterior.result]} (split r-hat "
               f"{d['max_rhat']:.3g}, bulk ESS {d['min_ess_bulk']:.0f}, {d['divergences']} of {d['draws']} divergent, "

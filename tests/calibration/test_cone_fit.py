@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 import jaxgaze as jg
 from jaxgaze.calibration import (
+    MAX_APEX_DISTANCE,
     ConeCalibration,
     calibrate_cone,
     points_in_camera_frame,
@@ -336,3 +337,16 @@ def test_works_under_vmap_and_reports_codes(wearers):
     assert np.asarray(cal.result == RESULTS.nonfinite)[3]
     assert np.all(np.delete(np.asarray(cal.result == RESULTS.successful), 3))
     assert np.all(np.isfinite(np.asarray(cal.eye_center)))
+
+
+def test_an_eye_centre_metres_from_the_camera_is_implausible(one_wearer):
+    """Positions in millimetres put the eye centre ~100 m away: ``implausible``, with the estimate kept."""
+    y = one_wearer[0]
+    key = jax.random.PRNGKey(0)
+    good = calibrate_cone(y, key=key)
+    assert bool(good.succeeded) and float(good.eye_distance) < MAX_APEX_DISTANCE
+    far = calibrate_cone(1000.0 * y, key=key, throw=False)
+    assert bool(far.result == RESULTS.implausible) and not bool(far.succeeded)
+    assert float(far.eye_distance) > 100.0  # the estimate is kept (λ of eq. 2 is not scale-free: not 1000×)
+    with pytest.raises(ValueError, match="physically implausible"):
+        calibrate_cone(1000.0 * y, key=key)
