@@ -37,6 +37,7 @@ def _one_frame_concurrences():
         region_semi_axes=np.full((2, 3), 0.1, np.float32),
         converged=np.ones(2, bool),
         valid=np.ones(2, bool),
+        degrees_of_freedom=np.array([9.0, 11.0], np.float32),
     )
 
 

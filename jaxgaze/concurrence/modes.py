@@ -15,19 +15,57 @@ Pipeline for one frame (all in JAX, fixed shapes, so it vmaps over frames):
    rejected. Otherwise it claims every not-yet-claimed ray whose perspective
    distance is below ``claim_bandwidths`` search bandwidths, and becomes a mode
    if it claims at least ``min_rays`` rays. Each ray supports at most one mode.
+   The claims are made twice: after the first pass the members' robust noise
+   ratio ``ĉ ≥ 1`` (pooled over the frame: how much wider than ``h`` the rays
+   scatter) is measured at the refined locations, and the second pass claims
+   with the bandwidths times ``max(1, ĉ/1.25)``. With a bandwidth that is right
+   ``ĉ`` is close to 1 and the claims stay as they were; with one too small the
+   second pass keeps the tail of each concurrence's residuals, which a fixed
+   radius would cut off.
 4. **Location and uncertainty.** Each mode is refined to the maximum-likelihood
-   common point of regard of its member rays under the calibrated cone model,
+   common point of regard of its member rays under the cone model,
    ``argmin_x Σ_i ‖d_i(x)‖² / 2h_i²`` (Levenberg–Marquardt, ``optimistix``).
-   Unclaimed rays within the claim radius of the refined point join it; members
-   farther than 4 ``h`` from it are dropped (a mode left with fewer than
+   Unclaimed rays within ``ĉ`` claim radii of the refined point join it; members
+   farther than ``4 ĉ h`` from it (``ĉ`` measured again) are dropped (a mode left with fewer than
    ``min_rays`` is dropped too); the location is refined again. Its covariance is
-   the Laplace (Gauss–Newton) approximation ``(JᵀJ + I/s²)⁻¹`` with ``J`` the
-   Jacobian of the whitened residuals ``d_i(x)/h_i`` and a weak prior of scale
-   ``s = prior_scale`` metres that keeps near-parallel rays finite. Under the
-   cone model the residuals at the true point are standard normal, so this is
-   the covariance whose coverage is checked. The paper's confidence region,
-   ``{x : f(x) ≥ 0.8 f(x*)}``, is reported by its principal axes from the Hessian
-   of ``log f`` at the location; it describes the field, not the location error.
+   built from the Laplace (Gauss–Newton) matrix ``Σ_L = (JᵀJ + I/s²)⁻¹`` with
+   ``J`` the Jacobian of the whitened residuals ``d_i(x)/h_i`` and a weak prior
+   of scale ``s = prior_scale`` metres that keeps near-parallel rays finite,
+   scaled by the noise the members actually show (**Noise scale** below).
+5. **The paper's region.** ``{x : f(x) ≥ 0.8 f(x*)}`` is reported by its
+   principal axes from the Hessian of ``log f`` at the location. It is a level
+   set of the field: it says how sharply the group's gaze agrees, in units of the
+   bandwidth, and does not shrink as members are added, so it is not a
+   confidence region for the location (on the simulated mocap scene it holds the
+   marker in 43.5 % of the frames). The covariance is the location's uncertainty.
+
+**Noise scale.** ``Σ_L`` alone trusts the user's bandwidth: rays that scatter
+more than ``h`` says make the ellipsoid too small, rays that scatter less make it
+too large. The noise of a concurrence's members is taken to be ``c·h_i``, with one
+unknown factor per concurrence and a log-uniform prior on ``u = c²`` over
+``[1/64, 64]`` (``c`` within 8× of the user's bandwidth, either way; flat in
+``log u`` is the scale-invariant choice, so inside those bounds the answer does
+not depend on how wrong ``h`` is). Each member's whitened residual is 2-D
+(perpendicular to its ray), so with ``n`` members, 3 location coordinates and
+``RSS = Σ_i ‖d_i(x̂)/h_i‖²`` at the location ``x̂``, integrating the location out of
+the linearised likelihood leaves ``p(u | RSS) ∝ u^{−(2n−3)/2} exp(−RSS/2u)`` on the
+prior's support — an inverse gamma ``IG((2n−3)/2, RSS/2)``, truncated. It is
+evaluated on a fixed grid of ``log u`` and summarised by the inverse gamma
+``IG(a, b)`` with the same mean and variance; integrating ``u`` out of
+``N(x̂, u Σ_L)`` then gives a 3-D Student-t with ``ν = 2a`` degrees of freedom and
+scale matrix ``(b/a) Σ_L``. ``covariances`` is that t's covariance,
+``E[u]·Σ_L``, and ``degrees_of_freedom`` its ``ν`` (always above 4, since the
+support is bounded). Its ``level`` region is
+``(x − x̂)ᵀ Σ⁻¹ (x − x̂) ≤ 3 (ν − 2)/ν · F⁻¹(level; 3, ν)`` (see
+:func:`~jaxgaze.concurrence.metrics.region_threshold`). With 4 or more members
+the data decide ``u`` (``ν`` close to ``2n − 3`` and ``E[u]`` close to
+``RSS/(2n − 5)``), so a bandwidth 2× too small or too large is corrected. A
+2-ray concurrence has one residual degree of freedom, and its covariance leans on
+the prior: about 4× ``Σ_L`` when the bandwidth is right. A conjugate
+scaled-inverse-χ² prior centred on 1 with ``ν₀`` pseudo-degrees of freedom would
+be simpler, but it cannot do both: ``ν₀ > 1`` is needed for a 2-ray mode to have
+a finite covariance, and with ``ν₀ ≥ 1`` a bandwidth 2× too large still gives
+95–99 % coverage of the 90 % region with 4–8 members.
 """
 
 from __future__ import annotations
@@ -74,6 +112,8 @@ __all__ = [
 DEFAULT_SEED_DEPTHS = tuple(float(x) for x in np.geomspace(0.4, 16.0, 16))
 
 _REGION_LEVEL = 0.8  # Park et al. Sec. 4.1: region above 80 % of the local maximum
+_NOISE_RATIO_RANGE = 8.0  # prior: the rays scatter between 1/8 and 8 times their bandwidth (log-uniform)
+_NOISE_GRID_POINTS = 256  # grid of the noise-scale posterior: steps of 0.033 in log c²
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,16 +220,23 @@ class Concurrences(NamedTuple):
 
     Attributes:
         locations: ``(…, K, 3)`` world-frame points (m).
-        covariances: ``(…, K, 3, 3)`` Laplace covariance of each location (m²).
+        covariances: ``(…, K, 3, 3)`` covariance of each location (m²): the Laplace
+            covariance scaled by the noise its member rays show, i.e. the covariance
+            of a Student-t with ``degrees_of_freedom`` (module docstring, **Noise scale**).
         field_values: ``(…, K)`` social saliency ``f`` at each location.
         num_rays: ``(…, K)`` number of member rays.
         membership: ``(…, N)`` index of the mode each ray supports, or −1.
         region_axes: ``(…, K, 3, 3)`` columns are the principal directions of the
-            80 %-of-maximum confidence region of ``f`` (Park et al., Sec. 4.1).
+            paper's confidence region ``{f ≥ 0.8 f(mode)}`` (Park et al., Sec. 4.1): a
+            level set of the field, not a confidence region for the location.
         region_semi_axes: ``(…, K, 3)`` its semi-axis lengths (m), from the
             quadratic approximation of ``log f``; ``inf`` along a flat direction.
         converged: ``(…, K)`` whether the mean-shift seed converged within ``tol``.
         valid: ``(…, K)`` mask of real modes (all ``True`` for a single frame).
+        degrees_of_freedom: ``(…, K)`` degrees of freedom ``ν`` of the location's
+            Student-t: its ``level`` region is ``(x − x̂)ᵀ Σ⁻¹ (x − x̂) ≤
+            3 (ν − 2)/ν · F⁻¹(level; 3, ν)`` with ``Σ`` = ``covariances``.
+            ``None`` (results built by hand) means Gaussian (``ν = ∞``).
     """
 
     locations: Float[Array, "... K 3"]
@@ -201,6 +248,7 @@ class Concurrences(NamedTuple):
     region_semi_axes: Float[Array, "... K 3"]
     converged: Bool[Array, "... K"]
     valid: Bool[Array, "... K"]
+    degrees_of_freedom: Float[Array, "... K"] | None = None
 
     @property
     def count(self) -> Int[Array, "..."]:
@@ -213,10 +261,11 @@ class Concurrences(NamedTuple):
 
     def frame(self, t: int) -> "Concurrences":
         """Frame ``t`` of a recording, with the padding removed."""
-        one = Concurrences(*(np.asarray(a)[t] for a in self))
+        one = Concurrences(*(None if a is None else np.asarray(a)[t] for a in self))
         keep = np.asarray(one.valid)
         return one._replace(
-            **{name: getattr(one, name)[keep] for name in one._fields if name != "membership"}
+            **{name: getattr(one, name)[keep] for name in one._fields
+               if name != "membership" and getattr(one, name) is not None}
         )
 
 
@@ -405,16 +454,50 @@ def _member_residuals(x: Float[Array, "3"], args) -> Float[Array, "N 3"]:
     return jnp.where(members[:, None], d, 0.0)
 
 
+def _noise_scale(rss, num_members):
+    """``(E[c²], ν)`` of a concurrence's noise-scale posterior (Park et al. 2012, Sec. 3.3; module docstring, **Noise scale**).
+
+    On a fixed grid of ``u = c²``, log-spaced over the prior's support, the
+    posterior weights are ``∝ u^{−(2n−3)/2} exp(−RSS/2u)`` (trapezoidal rule in
+    ``log u``); ``ν = 2a`` with ``a = 2 + E[u]²/Var[u]``, the shape of the inverse
+    gamma with the same mean and variance. Fewer than 2 members (padding) count as 2.
+    """
+    log_u = jnp.linspace(-2.0 * math.log(_NOISE_RATIO_RANGE), 2.0 * math.log(_NOISE_RATIO_RANGE),
+                         _NOISE_GRID_POINTS, dtype=rss.dtype)
+    u = jnp.exp(log_u)
+    k = 2.0 * jnp.maximum(num_members, 2).astype(rss.dtype) - 3.0
+    ends = jnp.zeros_like(log_u).at[jnp.array([0, -1])].set(math.log(0.5))  # trapezoidal rule
+    w = jax.nn.softmax(-0.5 * k * log_u - 0.5 * rss / u + ends)
+    mean = jnp.sum(w * u)
+    var = jnp.sum(w * (u - mean) ** 2)
+    return mean, 2.0 * (2.0 + mean * mean / var)
+
+
 def _refine_and_laplace(rays, members, x0, prior_scale, max_steps):
-    solver = optx.LevenbergMarquardt(rtol=1e-7, atol=1e-9)
+    """ML location of the members, its covariance (the Student-t's) and degrees of freedom (Park et al. 2012, Sec. 3.3).
+
+    Levenberg–Marquardt from ``x0`` to ``argmin_x Σ_i ‖d_i(x)/h_i‖²`` over the
+    members, then ``Σ_L = (JᵀJ + I/s²)⁻¹`` at the solution and, from the residual
+    sum of squares there, the covariance ``E[c²]·Σ_L`` and ``ν`` (:func:`_noise_scale`).
+    ``c²`` scales the covariance only: the location does not depend on it.
+    """
+    # float32 cannot meet float64's tolerances: LM would reach the minimum, keep stepping
+    # to max_steps and report failure.
+    single = jnp.finfo(x0.dtype).bits < 64
+    solver = optx.LevenbergMarquardt(rtol=1e-6 if single else 1e-7, atol=1e-7 if single else 1e-9)
     sol = optx.least_squares(
         _member_residuals, solver, x0, args=(rays, members), max_steps=max_steps, throw=False
     )
-    ok = sol.result == optx.RESULTS.successful
+    # Keep LM's point whenever it fits the members at least as well as the start, also when
+    # it ran out of steps (it only ever takes steps that lower the cost).
+    cost = lambda y: jnp.sum(_member_residuals(y, (rays, members)) ** 2)  # noqa: E731
+    ok = jnp.all(jnp.isfinite(sol.value)) & (cost(sol.value) <= cost(x0))
     x = jnp.where(ok, sol.value, x0)
     jac = jax.jacfwd(_member_residuals)(x, (rays, members)).reshape(-1, 3)
     precision = jac.T @ jac + jnp.eye(3, dtype=x.dtype) / prior_scale**2
-    return x, jnp.linalg.inv(precision)
+    rss = jnp.sum(_member_residuals(x, (rays, members)) ** 2)
+    mean_c2, dof = _noise_scale(rss, jnp.sum(members))
+    return x, jnp.linalg.inv(precision) * mean_c2, dof
 
 
 def _region(rays: GazeRays, x: Float[Array, "3"]) -> tuple[Array, Array]:
@@ -429,6 +512,32 @@ def _region(rays: GazeRays, x: Float[Array, "3"]) -> tuple[Array, Array]:
 
 _FIRST_STAGE_ITERATIONS = 40
 _PRUNE_BANDWIDTHS = 4.0  # P(‖d‖ > 4h) = e⁻⁸ ≈ 3·10⁻⁴ for a true member
+_ROBUST_MIN_MEMBERS = 4  # fewest members from which the noise ratio of the claims is estimated
+_CLAIM_RATIO_MARGIN = 1.25  # second claims widen by ĉ/1.25: a right bandwidth's noisy ĉ ≥ 1 leaves them as
+# they were (wider claims merge groups), one 2× too small still widens them 1.6×
+
+
+def _robust_noise_ratio(dist: Float[Array, "K N"], members: Bool[Array, "K N"]) -> Array:
+    """``max(1, ĉ)``: how much wider than their bandwidths the frame's member rays scatter (Park et al. 2012, Sec. 3.3).
+
+    ``dist`` holds the whitened distances ``‖d_i‖/h_i`` of every ray from each of
+    ``K`` refined locations and ``members`` marks each location's members. A
+    member's ``s_i = ‖d_i‖²/h_i²`` is about ``ĉ²·χ²₂`` (median ``2 ln 2``), shrunk
+    by the 3 coordinates fitted per location, so with ``n`` members in ``k``
+    concurrences ``ĉ² = median(s) / (2 ln 2) · 2n/(2n − 3k)``. The estimate is
+    pooled over the frame (the bandwidths are taken to be off by one common factor
+    here; each covariance still gets its own noise scale, :func:`_noise_scale`), and
+    the median ignores a stray ray of another group. With fewer than
+    ``_ROBUST_MIN_MEMBERS`` members, and when the rays scatter less than the
+    bandwidths say, the ratio is 1. Used only to widen the claim and prune radii.
+    """
+    n = jnp.sum(members)
+    k = jnp.sum(jnp.any(members, axis=-1))
+    s = jnp.sort(jnp.where(members, dist * dist, jnp.inf).reshape(-1))
+    half = jnp.maximum(n - 1, 0) // 2
+    median = 0.5 * (s[half] + s[jnp.maximum(n, 1) // 2])
+    ratio2 = median / (2.0 * math.log(2.0)) * (2.0 * n) / jnp.maximum(2.0 * n - 3.0 * k, 1.0)
+    return jnp.where(n >= _ROBUST_MIN_MEMBERS, jnp.sqrt(jnp.maximum(ratio2, 1.0)), 1.0)
 
 
 def _two_stage_meanshift(rays, seeds, seed_ok, *, tol, max_iter, keep):
@@ -485,35 +594,38 @@ def _concurrences_one_frame(
     score = jnp.where(seed_ok & (ms.field_values > 0) & inside(ms.points), ms.field_values, -jnp.inf)
     order = jnp.argsort(-score)
 
-    def visit(carry, s):
-        claimed, membership, modes, mode_conv, count = carry
-        x = ms.points[s]
-        dist, ok = _whitened_distances(search_proj, x)
-        candidates = ok & (dist < claim_bandwidths) & ~claimed
-        slot = jnp.arange(max_modes)
-        near_existing = jnp.any((slot < count) & (jnp.linalg.norm(modes - x, axis=-1) < merge_radius))
-        accept = (
-            jnp.isfinite(score[s])
-            & ~near_existing
-            & (_dominant_share(search_proj, x) <= dominance)
-            & (jnp.sum(candidates) >= min_rays)
-            & (count < max_modes)
-        )
-        claimed = claimed | (candidates & accept)
-        membership = jnp.where(candidates & accept, count, membership)
-        modes = jnp.where(accept & (slot == count)[:, None], x, modes)
-        mode_conv = jnp.where(accept & (slot == count), ms.converged[s], mode_conv)
-        return (claimed, membership, modes, mode_conv, count + accept.astype(jnp.int32)), None
+    def claim(claim_proj):
+        """Exclusive support (step 3) with distances whitened by ``claim_proj``'s bandwidths."""
 
-    init = (
-        jnp.zeros(n, bool),
-        jnp.full(n, -1, jnp.int32),
-        jnp.zeros((max_modes, 3), dtype),
-        jnp.zeros(max_modes, bool),
-        jnp.int32(0),
-    )
-    (_, membership, modes, mode_conv, count), _ = jax.lax.scan(visit, init, order)
-    valid = jnp.arange(max_modes) < count
+        def visit(carry, s):
+            claimed, membership, modes, mode_conv, count = carry
+            x = ms.points[s]
+            dist, ok = _whitened_distances(claim_proj, x)
+            candidates = ok & (dist < claim_bandwidths) & ~claimed
+            slot = jnp.arange(max_modes)
+            near_existing = jnp.any((slot < count) & (jnp.linalg.norm(modes - x, axis=-1) < merge_radius))
+            accept = (
+                jnp.isfinite(score[s])
+                & ~near_existing
+                & (_dominant_share(claim_proj, x) <= dominance)
+                & (jnp.sum(candidates) >= min_rays)
+                & (count < max_modes)
+            )
+            claimed = claimed | (candidates & accept)
+            membership = jnp.where(candidates & accept, count, membership)
+            modes = jnp.where(accept & (slot == count)[:, None], x, modes)
+            mode_conv = jnp.where(accept & (slot == count), ms.converged[s], mode_conv)
+            return (claimed, membership, modes, mode_conv, count + accept.astype(jnp.int32)), None
+
+        init = (
+            jnp.zeros(n, bool),
+            jnp.full(n, -1, jnp.int32),
+            jnp.zeros((max_modes, 3), dtype),
+            jnp.zeros(max_modes, bool),
+            jnp.int32(0),
+        )
+        (_, membership, modes, mode_conv, count), _ = jax.lax.scan(visit, init, order)
+        return membership, modes, mode_conv, jnp.arange(max_modes) < count
 
     def over_modes(fn, *xs):
         # Keeps the batched LAPACK calls below the size at which XLA:CPU can deadlock (see _batching).
@@ -524,28 +636,45 @@ def _concurrences_one_frame(
     refine = functools.partial(over_modes, lambda m, x0: _refine_and_laplace(rays, m, x0, prior_scale, refine_steps))
     slots = jnp.arange(max_modes)[:, None]
 
+    # Claims at the user's bandwidth give a first estimate of how much wider the
+    # rays scatter: the robust noise ratio ĉ ≥ 1 of the members at their refined
+    # locations, pooled over the frame. The claims are made again with the
+    # bandwidth times max(1, ĉ/1.25), so that a bandwidth too small for the rays
+    # does not cut off the tail of each concurrence's residuals (which would make
+    # its noise scale, and its covariance, too small). With ĉ ≤ 1.25 nothing changes.
+    membership, modes, _, valid = claim(search_proj)
+    initial = (membership[None, :] == slots) & valid[:, None]
+    first, _, _ = refine(initial, modes)
+    dist, _ = jax.vmap(lambda x: _whitened_distances(search_proj, x))(first)
+    ratio = _robust_noise_ratio(dist * search_scale, initial)
+    widen = jnp.maximum(1.0, ratio / _CLAIM_RATIO_MARGIN)
+    wide_proj = ray_projector(eqx.tree_at(lambda r: r.bandwidth, search, search.bandwidth * widen))
+    membership, modes, mode_conv, valid = claim(wide_proj)
+
     # The mixture mode sits where a subset of rays crosses tightly, so a true
     # member with a large residual can lie outside the claim radius there. Claim
     # the still-unclaimed rays again at each mode's refined (maximum-likelihood)
-    # location, nearest mode first, and refine once more.
-    first, _ = refine(membership[None, :] == slots, modes)
+    # location, nearest mode first, and refine once more. These claims cannot merge
+    # groups, so their radius takes the whole ratio ĉ.
+    first, _, _ = refine(membership[None, :] == slots, modes)
     dist, ok = jax.vmap(lambda x: _whitened_distances(search_proj, x))(first)
-    dist = jnp.where(valid[:, None] & ok & (dist < claim_bandwidths), dist, jnp.inf)
+    dist = jnp.where(valid[:, None] & ok & (dist < claim_bandwidths * ratio), dist, jnp.inf)
     nearest = jnp.argmin(dist, axis=0)
     late = (membership < 0) & jnp.isfinite(jnp.min(dist, axis=0))
     membership = jnp.where(late, nearest, membership)
     member_mask = membership[None, :] == slots
-    second, _ = refine(member_mask, first)
+    second, _, _ = refine(member_mask, first)
     # A wide search radius can also take in a stray ray of another group. Drop
-    # members that the calibrated cone model rejects at the refined location
-    # (‖d‖ > prune_bandwidths · h), drop modes left with too few rays, refine again.
+    # members that the cone model rejects at the refined location
+    # (‖d‖ > prune_bandwidths · ĉ h, ĉ the frame's robust noise ratio, at least 1),
+    # drop modes left with too few rays, refine again.
     dist, _ = jax.vmap(lambda x: _whitened_distances(proj, x))(second)
-    stray = member_mask & (dist > _PRUNE_BANDWIDTHS)
+    stray = member_mask & (dist > _PRUNE_BANDWIDTHS * _robust_noise_ratio(dist, member_mask & valid[:, None]))
     member_mask = member_mask & ~stray
     valid = valid & (jnp.sum(member_mask, axis=1) >= min_rays) & inside(second)
     member_mask = member_mask & valid[:, None]
     membership = jnp.where(jnp.any(member_mask, axis=0), jnp.argmax(member_mask, axis=0), -1).astype(jnp.int32)
-    locations, covariances = refine(member_mask, second)
+    locations, covariances, dof = refine(member_mask, second)
     axes, semi = over_modes(lambda x: _region(rays, x), locations)
     values = jax.vmap(lambda x: _field_value(proj, x))(locations)
 
@@ -563,6 +692,7 @@ def _concurrences_one_frame(
         region_semi_axes=pad(semi),
         converged=mode_conv & valid,
         valid=valid,
+        degrees_of_freedom=pad(dof),
     )
 
 
@@ -629,7 +759,7 @@ def _empty(batch_shape: tuple[int, ...], n: int, dtype) -> Concurrences:
     return Concurrences(
         locations=z(3), covariances=z(3, 3), field_values=z(), num_rays=z(dt=jnp.int32),
         membership=jnp.full(batch_shape + (n,), -1, jnp.int32), region_axes=z(3, 3),
-        region_semi_axes=z(3), converged=z(dt=bool), valid=z(dt=bool),
+        region_semi_axes=z(3), converged=z(dt=bool), valid=z(dt=bool), degrees_of_freedom=z(),
     )
 
 
@@ -647,6 +777,11 @@ def find_concurrences(
     Returns:
         :class:`Concurrences` with exactly the ``K`` modes found, ordered by
         decreasing field value. One ray or none gives ``K = 0``.
+
+    Precision: float32 and float64 rays give the same modes and memberships and agree
+    to within 10 µm on the locations (below the mean-shift stopping step of 0.1 mm;
+    scenes within tens of metres of the origin) and 1e-5 relative on the covariances
+    and field values.
     """
     if isinstance(rays, GazeRays) and rays.batch_shape:
         raise ValueError(

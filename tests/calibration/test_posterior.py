@@ -134,6 +134,11 @@ def test_calibration_spread_propagates_to_concurrence_locations():
                                          np.stack(centres))
     assert ensemble.found.mean() > 0.95
     np.testing.assert_allclose(ensemble.mean[0], target, atol=0.02)
-    laplace = jg.find_concurrences(jg.GazeRays(eyes, target - eyes, sigma)).covariances[0]
-    ratio = np.trace(ensemble.covariance[0]) / np.trace(np.asarray(laplace))
+    # The cone model's Laplace covariance at h = σ, at the target that every exact ray passes
+    # through: (Σ_i (I − v_i v_iᵀ)/(σ t_i)²)⁻¹. (find_concurrences would scale it by the noise
+    # that exact rays show, none.)
+    depth = np.linalg.norm(target - eyes, axis=1)
+    v = (target - eyes) / depth[:, None]
+    laplace = np.linalg.inv(np.sum((np.eye(3) - v[:, :, None] * v[:, None, :]) / (sigma * depth[:, None, None]) ** 2, 0))
+    ratio = np.trace(ensemble.covariance[0]) / np.trace(laplace)
     assert 0.7 < ratio < 1.4, ratio

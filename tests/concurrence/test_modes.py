@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.integrate import quad
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
@@ -149,9 +150,13 @@ def test_location_is_maximum_likelihood_point_of_members(scene_result, x64):
 
         ref = least_squares(residuals, np.asarray(result.locations[k]) + 0.05, xtol=1e-14, ftol=1e-14)
         np.testing.assert_allclose(np.asarray(result.locations[k]), ref.x, atol=1e-6)
-        # Gauss–Newton Laplace covariance (JᵀJ)⁻¹, with the tiny prior of scale 100 m.
-        expected = np.linalg.inv(ref.jac.T @ ref.jac + np.eye(3) / 100.0**2)
-        np.testing.assert_allclose(np.asarray(result.covariances[k]), expected, rtol=1e-4)
+        # Gauss–Newton Laplace covariance (JᵀJ)⁻¹, with the tiny prior of scale 100 m, times the
+        # posterior mean of the noise scale c² (log-uniform on [1/64, 64], 2n − 3 residual dof).
+        laplace = np.linalg.inv(ref.jac.T @ ref.jac + np.eye(3) / 100.0**2)
+        dof, rss = 2 * m.sum() - 3, np.sum(ref.fun**2)
+        density = lambda log_u, power: np.exp(power * log_u - dof / 2 * log_u - rss / 2 * np.exp(-log_u))  # noqa: E731
+        mean_c2 = quad(density, -np.log(64), np.log(64), args=(1,))[0] / quad(density, -np.log(64), np.log(64), args=(0,))[0]
+        np.testing.assert_allclose(np.asarray(result.covariances[k]), mean_c2 * laplace, rtol=1e-4)
 
 
 def test_meanshift_mode_matches_brute_force_grid_maximum(x64):
