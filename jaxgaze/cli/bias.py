@@ -51,9 +51,8 @@ Frame times are the timestamps, else frame / --fps; SEGMENTS uses the same
 clock (seconds). A --targets CSV (frame, tx, ty, tz) must cover every frame.
 
 """ + BIAS_JSON_FORMAT + """\
-A --method bayes posterior that did not mix (posterior.result not_mixed) is
-written all the same, and the command exits with status 1 and one line on
-stderr. Reader warnings (dropped frames, merged speech segments) go to stderr as
+A bayes posterior that did not mix (posterior.result not_mixed) is written, and
+the command exits 1 with one line on stderr. Reader warnings (dropped frames, merged speech segments) go to stderr as
 'jaxgaze: warning: ...' lines and do not fail the command.
 """
 _SAMPLES = 500
@@ -156,10 +155,6 @@ def _speech(args):
         raise CommandError(str(error), args.speech) from None
 
 
-def _number(value) -> str:
-    return "undefined" if value is None else f"{value:.3g}"
-
-
 def run(args) -> int:
     """``jaxgaze bias``: the files → :func:`~jaxgaze.bias.adapt_bias` → BIAS.json (and --per-frame)."""
     if args.method == "lmeds" and args.frames is not None and args.frames < 3:
@@ -201,11 +196,10 @@ def run(args) -> int:
     with writing(args.out):
         write_bias_report(args.out, record, args.per_frame)
     if not result.estimate.succeeded:
-        d = record["posterior"]
-        print(f"jaxgaze bias: the posterior failed: {RESULTS[result.estimate.result]} (split r-hat "
-              f"{_number(d['r_hat_max'])}, bulk ESS {_number(d['ess_bulk_min'])}, {d['divergences']} of "
-              f"{args.samples} draws divergent, acceptance {_number(d['acceptance_rate'])}); written to {args.out} for "
-              "inspection; try more --samples or --method lmeds", file=sys.stderr)
+        d = result.estimate.diagnostics
+        print(f"jaxgaze bias: the posterior failed: {RESULTS[result.estimate.result]} (split r-hat {d['max_rhat']:.3g}, "
+              f"bulk ESS {d['min_ess_bulk']:.0f}, {d['divergences']} of {d['draws']} draws divergent, acceptance "
+              f"{d['acceptance_rate']:.2f}); written to {args.out}; try more --samples or --method lmeds", file=sys.stderr)
         return 1
     spread = "" if record["std_deg"] is None else " ± ({:.2f}°, {:.2f}°)".format(*record["std_deg"])
     summary(args, f"bias (yaw, tilt) = ({record['bias_deg'][0]:+.2f}°, {record['bias_deg'][1]:+.2f}°){spread} "

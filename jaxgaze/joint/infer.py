@@ -33,7 +33,7 @@ from jaxgaze.joint.init import JointStart, directions_to_people, joint_start
 from jaxgaze.joint.model import (BLOCK_FRAMES, JointPrior, ModelArrays, concurrence_locations, eye_positions,
                                  joint_model, target_marginals)
 from jaxgaze.nuts import (MAX_DIVERGENT_SHARE, MAX_RHAT, MIN_ESS, laplace_inverse_mass, mixing_diagnostics,
-                          mixing_result, sample_nuts)
+                          mixing_result, posterior_summary, sample_nuts)
 from jaxgaze.rays import GazeRays
 from jaxgaze.results import RESULTS, name, throw_if_failed
 
@@ -271,6 +271,12 @@ class JointPosterior(NamedTuple):
     @property
     def num_people(self) -> int:
         return len(self.people)
+
+    @property
+    def summary(self):
+        """``az.summary`` of the model's parameters: mean, sd, 90% HDI, bulk and tail ESS, split r-hat
+        (:func:`jaxgaze.nuts.posterior_summary`; for SVI, of the guide's independent draws)."""
+        return posterior_summary(self.idata, _SUMMARY_SITES)
 
     @property
     def num_concurrences(self) -> int:

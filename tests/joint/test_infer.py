@@ -92,6 +92,10 @@ def test_result_code_follows_the_diagnostics(fitted):
               and d["acceptance_rate"] >= 0.5)
     assert fitted.succeeded == passes
     assert fitted.result == (RESULTS.successful if passes else RESULTS.not_mixed)
+    table = fitted.summary  # mean, sd, 90% HDI, ESS and the split r-hat a single chain has
+    assert {"mean", "sd", "hdi_5%", "hdi_95%", "ess_bulk", "ess_tail", "r_hat"} <= set(table.columns)
+    assert "bias[0, 0]" in table.index and table["ess_bulk"].min() == pytest.approx(d["min_ess_bulk"])
+    assert np.all(table["hdi_5%"] <= table["mean"]) and np.all(table["mean"] <= table["hdi_95%"])
 
 
 def test_a_sampler_that_never_moved_is_reported_and_can_raise(scene, fitted, monkeypatch):
