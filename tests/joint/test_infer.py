@@ -94,7 +94,8 @@ def test_result_code_follows_the_diagnostics(fitted):
     assert fitted.result == (RESULTS.successful if passes else RESULTS.not_mixed)
     table = fitted.summary  # mean, sd, 90% HDI, ESS and the split r-hat a single chain has
     assert {"mean", "sd", "hdi_5%", "hdi_95%", "ess_bulk", "ess_tail", "r_hat"} <= set(table.columns)
-    assert "bias[0, 0]" in table.index and table["ess_bulk"].min() == pytest.approx(d["min_ess_bulk"])
+    assert f"bias[{fitted.people[0]}, yaw]" in table.index
+    assert table["ess_bulk"].min() == pytest.approx(d["min_ess_bulk"])
     assert np.all(table["hdi_5%"] <= table["mean"]) and np.all(table["mean"] <= table["hdi_95%"])
 
 
@@ -165,7 +166,13 @@ def test_head_mounted_calibration_is_inferred_with_the_recording(scene, fitted):
     truth = scene.eye_in_camera[:2]
     joint_error = np.linalg.norm(fitted.samples["eye_offset"].mean(0) - truth, axis=-1)
     park_error = np.linalg.norm(fitted.start.eye_offset - truth, axis=-1)  # Park's calibration alone
-    assert np.all(joint_error < 0.08) and np.all(joint_error < park_error)
+    # The eye's depth along the primary ray is weakly identified: the posterior has a far
+    # mode (the eye ~1 m behind the camera), and a single chain can end there. Then the
+    # run must not pass as a success; when it mixed, the eyes are recovered.
+    recovered = np.all(joint_error < 0.08) and np.all(joint_error < park_error)
+    assert recovered or fitted.result == RESULTS.not_mixed, (joint_error, fitted.diagnostics)
+    if not recovered:
+        assert np.max(joint_error) > 0.3  # the far mode, not a near miss
     assert fitted.idata.posterior["eye_offset"].shape[-2:] == (2, 3)
 
 
