@@ -491,11 +491,12 @@ def _refine_and_laplace(rays, members, x0, prior_scale, max_steps):
     # Keep LM's point whenever it fits the members at least as well as the start, also when
     # it ran out of steps (it only ever takes steps that lower the cost).
     cost = lambda y: jnp.sum(_member_residuals(y, (rays, members)) ** 2)  # noqa: E731
-    ok = jnp.all(jnp.isfinite(sol.value)) & (cost(sol.value) <= cost(x0))
+    solved_cost, start_cost = cost(sol.value), cost(x0)
+    ok = jnp.all(jnp.isfinite(sol.value)) & (solved_cost <= start_cost)
     x = jnp.where(ok, sol.value, x0)
+    rss = jnp.where(ok, solved_cost, start_cost)  # the residual sum of squares at x
     jac = jax.jacfwd(_member_residuals)(x, (rays, members)).reshape(-1, 3)
     precision = jac.T @ jac + jnp.eye(3, dtype=x.dtype) / prior_scale**2
-    rss = jnp.sum(_member_residuals(x, (rays, members)) ** 2)
     mean_c2, dof = _noise_scale(rss, jnp.sum(members))
     return x, jnp.linalg.inv(precision) * mean_c2, dof
 
