@@ -255,7 +255,7 @@ def mixing_result(diagnostics: dict) -> RESULTS:
 
 
 def posterior_summary(idata, var_names):
-    """``az.summary`` of ``var_names``: mean, sd, the 90% HDI, bulk and tail ESS and split r-hat.
+    """``az.summary`` of ``var_names``: mean, sd and the 90% HDI (unrounded), bulk and tail ESS and split r-hat.
 
     The ESS and r-hat are those :func:`mixing_diagnostics` judges: a single chain
     has an r-hat, and a variable that never moved has no ESS (0) and a NaN r-hat.
@@ -265,7 +265,7 @@ def posterior_summary(idata, var_names):
     posterior = _checked(idata, var_names)
     with quiet_single_chain(1), np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        table = az.summary(posterior, kind="stats", hdi_prob=HDI_PROB)
+        table = az.summary(posterior, kind="stats", hdi_prob=HDI_PROB, round_to="none")
     return table.join(_diagnostic_table(posterior))
 
 

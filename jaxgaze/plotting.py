@@ -8,7 +8,9 @@ Positions are world-frame metres; the top view looks down the ``z`` axis.
 Artists carry a ``gid`` (``artist.get_gid()``) so that figures can be inspected programmatically:
 ``"modes"`` (one marker per concurrence), ``"truth"``, ``"eyes"``,
 ``"mode ellipse"`` (one patch per concurrence), ``"saliency MIP"`` (the image),
-``"ray"``, ``"births"``, ``"deaths"``, ``"track <id>"``, ``"track <id> points"``, ``"K"`` and ``"true K"``.
+``"ray"``, ``"zoom"`` (the inset axes of :func:`plot_top_view`, holding its own ``"mode ellipse"``,
+``"modes"``, ``"truth"``, ``"ray"`` and ``"scale bar"``), ``"births"``, ``"deaths"``, ``"track <id>"``,
+``"track <id> points"``, ``"K"`` and ``"true K"``.
 """
 
 from __future__ import annotations
@@ -16,22 +18,30 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from matplotlib.colors import to_rgba
+from matplotlib.colors import Normalize, to_rgba
 from matplotlib.figure import Figure
+from matplotlib.font_manager import FontProperties
 from matplotlib.patches import Ellipse
+from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
 from jaxgaze.cone import max_intensity_projection, saliency_field_grid
 from jaxgaze.rays import GazeRays
 
-__all__ = ["plot_top_view", "plot_trajectories", "plot_counts", "plot_scene_story", "top_view_bounds", "ELLIPSE_LEVEL"]
+__all__ = ["plot_top_view", "plot_trajectories", "plot_counts", "plot_scene_story", "plot_recording", "share_colour_scale",
+           "top_view_bounds", "ELLIPSE_LEVEL"]
 
 #: Probability mass inside the drawn covariance ellipses.
 ELLIPSE_LEVEL = 0.9
 # Quantile of the chi-square distribution with 2 degrees of freedom: -2 log(1 - p).
 _CHI2_2DOF = -2.0 * math.log(1.0 - ELLIPSE_LEVEL)
 
-_MODE_COLOUR = "tab:orange"
 _TRUTH_COLOUR = "cyan"
+# Draw order: the estimate (a filled dot) above the truth (a hollow ring), so neither hides the other.
+_TRUTH_ZORDER, _MODE_ZORDER = 5, 6
+# The zoom inset and the legend go to the axes' corners (axes fraction) that cover the fewest drawn points.
+_INSET_SIZE = 0.36
+_LEGEND_SIZE = (0.6, 0.2)
+_CORNERS = ("upper right", "upper left", "lower right", "lower left")
 
 
 def _new_axes(ax, figsize=(6.0, 5.0)):
@@ -42,9 +52,9 @@ def _new_axes(ax, figsize=(6.0, 5.0)):
 
 
 def _valid_modes(concurrences):
-    """Host arrays ``(locations (K,3), covariances (K,3,3), membership (N,) or None)`` of one frame."""
+    """Host arrays ``(locations (K,3), covariances (K,3,3), membership (N,) or None, num_rays (K,))`` of one frame."""
     if concurrences is None:
-        return np.zeros((0, 3)), np.zeros((0, 3, 3)), None
+        return np.zeros((0, 3)), np.zeros((0, 3, 3)), None, np.zeros(0, int)
     locations = np.asarray(concurrences.locations, dtype=float)
     if locations.ndim != 2:
         raise ValueError(
@@ -54,11 +64,12 @@ def _valid_modes(concurrences):
     covariances = np.asarray(concurrences.covariances, dtype=float)
     valid = np.asarray(concurrences.valid, dtype=bool)
     membership = np.asarray(concurrences.membership)
+    num_rays = np.asarray(concurrences.num_rays).reshape(-1)
     if valid.shape == (locations.shape[0],) and not valid.all():
         # A padded frame: keep the valid modes; membership indices stay valid
         # because the real modes come first.
-        locations, covariances = locations[valid], covariances[valid]
-    return locations, covariances, membership
+        locations, covariances, num_rays = locations[valid], covariances[valid], num_rays[valid]
+    return locations, covariances, membership, num_rays
 
 
 def top_view_bounds(rays: GazeRays, points=None, margin: float = 0.5):
@@ -93,6 +104,7 @@ def plot_top_view(
     ray_length=None,
     title=None,
     colorbar=True,
+    inset=True,
 ):
     """Top view of one frame: the saliency field's maximum-intensity projection, rays, modes and truth.
 
@@ -101,7 +113,7 @@ def plot_top_view(
         concurrences_one_frame: :class:`~jaxgaze.Concurrences` of that frame
             (``find_concurrences`` or ``Concurrences.frame(t)``; padded modes
             are dropped via ``valid``), or ``None``.
-        truth: optional ``(M, 3)`` true concurrence locations, drawn as crosses.
+        truth: optional ``(M, 3)`` true concurrence locations, drawn as hollow rings.
         ax: axes to draw into; a new figure is made if ``None``.
         extent: ``(xmin, xmax, ymin, ymax)`` in metres; by default the eyes,
             modes and truth plus a 0.5 m margin.
@@ -112,20 +124,23 @@ def plot_top_view(
         ray_length: length (m) of the drawn rays; by default the box diagonal.
         title: axes title.
         colorbar: add a colour bar for ``f``.
+        inset: add a zoom inset (gid ``"zoom"``) on the concurrence with the most rays.
 
     The image is ``max_z f(x, y, z)`` shown with ``origin="lower"``, so
-    ``image[j, i]`` is the cell at ``(xs[i], ys[j])``. Each mode is a marker
+    ``image[j, i]`` is the cell at ``(xs[i], ys[j])``. Each mode is a filled dot
     with the ellipse holding 90 % of its Laplace posterior projected onto xy
-    (the marginal of ``covariances[:2, :2]``). Rays are drawn from the eye
-    centres, coloured by the mode they support (grey for none).
+    (the marginal of ``covariances[:2, :2]``, ``χ²₂`` quantile); the truth is a
+    hollow ring drawn below the dots. Rays are drawn from the eye centres,
+    coloured by the mode they support (grey for none). The ellipses are
+    centimetres across on a plot metres wide, so the inset shows one of them at
+    a scale where it is visible, with its rays, the nearby truth and a scale bar.
     """
     if not isinstance(rays_one_frame, GazeRays) or rays_one_frame.batch_shape:
         raise ValueError("plot_top_view: rays_one_frame must be one frame of GazeRays, shape (N, 3); use rays[t]")
-    locations, covariances, membership = _valid_modes(concurrences_one_frame)
-    truth_np = None if truth is None else np.asarray(truth, dtype=float).reshape(-1, 3)
+    locations, covariances, membership, num_rays = _valid_modes(concurrences_one_frame)
+    truth_np = np.zeros((0, 3)) if truth is None else np.asarray(truth, dtype=float).reshape(-1, 3)
 
-    extra = [locations] + ([truth_np] if truth_np is not None else [])
-    lower, upper = top_view_bounds(rays_one_frame, np.concatenate(extra, axis=0))
+    lower, upper = top_view_bounds(rays_one_frame, np.concatenate([locations, truth_np], axis=0))
     if extent is not None:
         if len(extent) != 4:
             raise ValueError(f"plot_top_view: extent must be (xmin, xmax, ymin, ymax), got {extent}")
@@ -150,49 +165,113 @@ def plot_top_view(
     )
     if colorbar:
         fig.colorbar(image, ax=ax, shrink=0.8, label="max$_z$ saliency $f$")
+    ax.set_xlim(lower[0] - dx / 2, upper[0] + dx / 2)
+    ax.set_ylim(lower[1] - dy / 2, upper[1] + dy / 2)
 
-    # Rays: a line from each eye centre along the xy projection of v, plus the eye.
     mask = np.asarray(rays_one_frame.mask, dtype=bool)
     origins = np.asarray(rays_one_frame.origins, dtype=float)[mask]
     directions = np.asarray(rays_one_frame.directions, dtype=float)[mask]
     length = float(np.linalg.norm(upper - lower)) if ray_length is None else float(ray_length)
     member = membership[mask] if membership is not None and membership.shape == mask.shape else None
     mode_colours = _track_colours(len(locations))
-    for i, (o, d) in enumerate(zip(origins, directions)):
-        k = -1 if member is None else int(member[i])
-        colour = mode_colours[k] if 0 <= k < len(locations) else "0.75"
-        end = o + length * d
-        ax.plot([o[0], end[0]], [o[1], end[1]], color=colour, lw=0.8, alpha=0.7, gid="ray")
+    ray_colours = [mode_colours[k] if 0 <= k < len(locations) else "0.75"
+                   for k in (np.full(len(origins), -1) if member is None else member.astype(int))]
+    _draw_rays(ax, origins, directions, ray_colours, length)
     if len(origins):
         ax.quiver(
             origins[:, 0], origins[:, 1], directions[:, 0], directions[:, 1],
             color="white", angles="xy", scale_units="inches", scale=3.0, width=0.006, gid="gaze",
         )
         ax.scatter(origins[:, 0], origins[:, 1], s=25, c="white", edgecolors="black", zorder=3, gid="eyes")
+    _draw_modes(ax, locations, covariances, truth_np, mode_colours, truth is not None, size=1.0)
 
-    # Modes with their 90 % covariance ellipse in xy.
-    for k, (loc, cov) in enumerate(zip(locations, covariances)):
-        width, height, angle = _ellipse_params(cov[:2, :2])
-        ax.add_patch(
-            Ellipse(loc[:2], width, height, angle=angle, fill=False, ec=mode_colours[k], lw=1.5,
-                    gid="mode ellipse", zorder=4)
-        )
-    ax.scatter(locations[:, 0], locations[:, 1], s=60, marker="o", c=mode_colours[: len(locations)] or None,
-               edgecolors="black", zorder=5, gid="modes",
-               label=f"concurrence ({ELLIPSE_LEVEL:.0%} ellipse)" if len(locations) else "_modes")
-    if truth_np is not None:
-        ax.scatter(truth_np[:, 0], truth_np[:, 1], s=70, marker="x", c=_TRUTH_COLOUR, linewidths=2,
-                   zorder=6, gid="truth",
-                   label="truth" if len(truth_np) else "_truth")
-
-    if len(locations) or (truth_np is not None and len(truth_np)):
-        ax.legend(fontsize="small", loc="best", framealpha=0.6)
-    ax.set_xlim(lower[0] - dx / 2, upper[0] + dx / 2)
-    ax.set_ylim(lower[1] - dy / 2, upper[1] + dy / 2)
+    # What an inset or the legend should not hide: the concurrences and the truth most, then the eyes.
+    drawn, corners = [(origins[:, :2], 1), (locations[:, :2], 5), (truth_np[:, :2], 5)], _CORNERS
+    if inset and len(locations):
+        k = int(np.argmax(num_rays)) if len(num_rays) == len(locations) else 0
+        corner = _free_corners(ax, drawn, (_INSET_SIZE, _INSET_SIZE))[0]
+        box = ax.inset_axes(_corner_box(corner, (_INSET_SIZE, _INSET_SIZE)), gid="zoom")
+        _draw_zoom(box, k, locations, covariances, truth_np, origins, directions, ray_colours, mode_colours, length)
+        ax.indicate_inset_zoom(box, edgecolor="white", alpha=0.9)
+        corners = [c for c in _CORNERS if c != corner]
+    if len(locations) or len(truth_np):
+        ax.legend(fontsize="small", loc=_free_corners(ax, drawn, _LEGEND_SIZE, corners)[0], framealpha=0.6)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title(title if title is not None else f"top view: {len(locations)} concurrence(s)")
     return fig
+
+
+def _draw_rays(ax, origins, directions, colours, length):
+    """A line from each eye centre along the xy projection of its direction ``v``."""
+    for o, d, colour in zip(origins, directions, colours):
+        end = o + length * d
+        ax.plot([o[0], end[0]], [o[1], end[1]], color=colour, lw=0.8, alpha=0.7, gid="ray")
+
+
+def _draw_modes(ax, locations, covariances, truth, colours, with_truth: bool, size: float):
+    """The modes (filled dots) with their ``ELLIPSE_LEVEL`` ellipses in xy, above the truth (hollow rings)."""
+    for k, (loc, cov) in enumerate(zip(locations, covariances)):
+        width, height, angle = _ellipse_params(cov[:2, :2])
+        ax.add_patch(Ellipse(loc[:2], width, height, angle=angle, fill=False, ec=colours[k], lw=1.5,
+                             gid="mode ellipse", zorder=_MODE_ZORDER - 0.5))
+    if with_truth:
+        ax.scatter(truth[:, 0], truth[:, 1], s=110 * size, marker="o", facecolors="none", edgecolors=_TRUTH_COLOUR,
+                   linewidths=1.8, zorder=_TRUTH_ZORDER, gid="truth", label="truth" if len(truth) else "_truth")
+    ax.scatter(locations[:, 0], locations[:, 1], s=40 * size, marker="o", c=colours[: len(locations)] or None,
+               edgecolors="black", zorder=_MODE_ZORDER, gid="modes",
+               label=f"concurrence ({ELLIPSE_LEVEL:.0%} ellipse)" if len(locations) else "_modes")
+
+
+def _corner_box(corner: str, size) -> tuple[float, float, float, float]:
+    """``(x0, y0, width, height)`` in axes fraction of a box of ``size`` in ``corner``, 2 % from the edges."""
+    width, height = size
+    x0 = 0.98 - width if corner.endswith("right") else 0.02
+    y0 = 0.98 - height if corner.startswith("upper") else 0.02
+    return x0, y0, width, height
+
+
+def _free_corners(ax, points, size, corners=_CORNERS) -> list:
+    """``corners`` sorted by the weight of the drawn ``points`` (``[(xy (n, 2) data, weight)]``) that a box
+    of ``size`` there would cover; ties keep their order."""
+    xy = np.concatenate([np.asarray(p, dtype=float).reshape(-1, 2) for p, _ in points], axis=0)
+    weights = np.concatenate([np.full(len(np.asarray(p).reshape(-1, 2)), float(w)) for p, w in points])
+    fraction = ax.transLimits.transform(xy) if len(xy) else np.zeros((0, 2))
+
+    def crowd(corner):
+        x0, y0, width, height = _corner_box(corner, size)
+        inside = (fraction >= [x0 - 0.05, y0 - 0.05]) & (fraction <= [x0 + width + 0.05, y0 + height + 0.05])
+        return float(weights[np.all(inside, axis=1)].sum())
+
+    return sorted(corners, key=crowd)
+
+
+def _draw_zoom(box, k, locations, covariances, truth, origins, directions, ray_colours, mode_colours, length):
+    """Mode ``k`` at a scale where its ellipse shows: its window is ``1.6 ×`` the larger of the
+    ellipse's semi-major axis and the distance to the nearest truth (if that is within 0.5 m),
+    at least 2 cm; a scale bar of 1, 2 or 5 × 10ⁿ cm, about a third of the window."""
+    width, height, _ = _ellipse_params(covariances[k][:2, :2])
+    centre = locations[k, :2]
+    near = np.linalg.norm(truth[:, :2] - centre, axis=1) if len(truth) else np.zeros(0)
+    reach = max(0.5 * max(width, height), float(near.min()) if len(near) and near.min() < 0.5 else 0.0)
+    half = max(1.6 * reach, 0.02)
+    box.set_facecolor("black")
+    _draw_rays(box, origins, directions, ray_colours, length)
+    _draw_modes(box, locations, covariances, truth, mode_colours, len(truth) > 0, size=1.4)
+    box.set_xlim(centre[0] - half, centre[0] + half)
+    box.set_ylim(centre[1] - half, centre[1] + half)
+    box.set_aspect("equal", adjustable="box")
+    box.set_xticks([])
+    box.set_yticks([])
+    step = 10.0 ** math.floor(math.log10(2.0 * half / 3.0))
+    bar = max(m * step for m in (1.0, 2.0, 5.0) if m * step <= 2.0 * half / 3.0)
+    label = f"{100 * bar:g} cm" if bar < 1.0 else f"{bar:g} m"
+    scale = AnchoredSizeBar(box.transData, bar, label, "lower right", color="white", frameon=False,
+                            size_vertical=0, pad=0.3, sep=3, fontproperties=FontProperties(size="x-small"))
+    scale.set_gid("scale bar")
+    box.add_artist(scale)
+    box.text(0.04, 0.96, f"zoom: {ELLIPSE_LEVEL:.0%} ellipse", transform=box.transAxes, va="top", ha="left",
+             color="white", fontsize="x-small")
 
 
 def _ellipse_params(cov_xy: np.ndarray):
@@ -293,24 +372,82 @@ def plot_counts(counts, true_counts=None, ax=None, *, fps=None, title=None):
     return fig
 
 
+def share_colour_scale(fig: Figure, panels) -> None:
+    """Put the top views ``panels`` (of :func:`plot_top_view`, drawn with ``colorbar=False``) on one
+    colour scale, ``[min, max]`` of all their images, with one colour bar and one legend for them all:
+    the same ``f`` is then the same colour in every panel."""
+    images = [a for ax in panels for a in ax.get_images() if a.get_gid() == "saliency MIP"]
+    if not images:
+        raise ValueError("share_colour_scale: no top view (saliency MIP image) among the panels")
+    norm = Normalize(min(float(np.min(im.get_array())) for im in images),
+                     max(float(np.max(im.get_array())) for im in images))
+    for image in images:
+        image.set_norm(norm)
+    fig.colorbar(images[0], ax=list(panels), shrink=0.8, label="max$_z$ saliency $f$ (one scale)")
+    with_legend = [ax for ax in panels if ax.get_legend() is not None]
+    if with_legend:  # one legend above the colour bar rather than one in each panel
+        handles, labels = with_legend[0].get_legend_handles_labels()
+        for ax in with_legend:
+            ax.get_legend().remove()
+        fig.legend(handles, labels, loc="outside right upper", fontsize="small")
+
+
 def plot_scene_story(scene, concurrences, tracks) -> Figure:
     """One figure for a simulated recording with truth (a :class:`jaxgaze.simulate.Scene`): the
-    top view of the middle frame of every phase of its story, the trajectories and the counts."""
+    top view of the middle frame of every phase of its story, on one colour scale with one colour bar
+    (each with a zoom inset on a concurrence), the trajectories and the counts."""
     truth, truth_valid, phase = (np.asarray(x) for x in (scene.concurrences, scene.concurrence_valid, scene.phase))
     shown = [(int(p), int(np.flatnonzero(phase == p)[np.sum(phase == p) // 2])) for p in dict.fromkeys(phase.tolist())]
     lower, upper = top_view_bounds(scene.rays, truth.reshape(-1, 3), margin=0.6)
     width = max(len(shown), 2)
     fig = Figure(figsize=(4.6 * width, 8.6), layout="constrained")
     grid = fig.add_gridspec(2, width * 2)
+    panels = []
     for i, (p, t) in enumerate(shown):
         one = concurrences.frame(t)
-        plot_top_view(scene.rays[t], one, truth=truth[t][truth_valid[t]], ax=fig.add_subplot(grid[0, 2 * i:2 * i + 2]),
+        panels.append(fig.add_subplot(grid[0, 2 * i:2 * i + 2]))
+        plot_top_view(scene.rays[t], one, truth=truth[t][truth_valid[t]], ax=panels[-1],
                       extent=(lower[0], upper[0], lower[1], upper[1]), z_range=(lower[2], upper[2]),
-                      grid_shape=(96, 64, 24), colorbar=True,
+                      grid_shape=(96, 64, 24), colorbar=False,
                       title=f"phase {p}: frame {t} (t = {t / scene.fps:.1f} s)\n"
                             f"K = {len(one.locations)}, true K = {int(truth_valid[t].sum())}")
+    share_colour_scale(fig, panels)
     plot_trajectories(concurrences, tracks, ax=fig.add_subplot(grid[1, :width]), fps=scene.fps)
     plot_counts(np.asarray(concurrences.count), np.asarray(scene.true_count), ax=fig.add_subplot(grid[1, width:]),
                 fps=scene.fps)
-    fig.suptitle(f"jaxgaze demo: simulated '{scene.name}' scene, {scene.num_frames} frames, {scene.num_people} people")
+    fig.suptitle(f"jaxgaze demo: simulated '{scene.name}' scene, {scene.num_frames} frames, {scene.num_people} people",
+                 x=0.02, ha="left")  # clear of the legend in the upper right
+    return fig
+
+
+def _shown_frames(counts: np.ndarray, panels: int = 3) -> list[int]:
+    """One frame per equal part of the recording (up to ``panels``): the first with that part's most concurrences."""
+    parts = [part for part in np.array_split(np.arange(len(counts)), min(panels, len(counts))) if len(part)]
+    return [int(part[np.argmax(counts[part])]) for part in parts]
+
+
+def plot_recording(rays: GazeRays, concurrences, tracks, frame_ids=None, *, title: str | None = None) -> Figure:
+    """One figure for a recording without truth (``(T, N)`` rays and their padded concurrences): top
+    views of up to three frames, one per third of the recording, the one with most concurrences, on
+    one colour scale; the trajectories and the count per frame. ``frame_ids`` label the frames
+    (default their rows ``0 … T−1``)."""
+    counts = np.asarray(concurrences.count)
+    frame_ids = list(range(len(counts))) if frame_ids is None else list(frame_ids)
+    valid = np.asarray(concurrences.valid)
+    lower, upper = top_view_bounds(rays, np.asarray(concurrences.locations)[valid], margin=0.6)
+    shown = _shown_frames(counts)
+    width = max(len(shown), 2)
+    fig = Figure(figsize=(4.6 * width, 8.6), layout="constrained")
+    grid = fig.add_gridspec(2, width * 2)
+    panels = []
+    for i, t in enumerate(shown):
+        one = concurrences.frame(t)
+        panels.append(fig.add_subplot(grid[0, 2 * i:2 * i + 2]))
+        plot_top_view(rays[t], one, ax=panels[-1], extent=(lower[0], upper[0], lower[1], upper[1]),
+                      z_range=(lower[2], upper[2]), grid_shape=(96, 64, 24), colorbar=False,
+                      title=f"frame {frame_ids[t]}: K = {len(one.locations)}")
+    share_colour_scale(fig, panels)
+    plot_trajectories(concurrences, tracks, ax=fig.add_subplot(grid[1, :width]))
+    plot_counts(counts, ax=fig.add_subplot(grid[1, width:]), title="concurrences per frame (row of the input)")
+    fig.suptitle(title or f"{len(counts)} frames, {int(tracks.num_tracks)} track(s)", x=0.02, ha="left")
     return fig

@@ -20,6 +20,7 @@ arrays go straight into JAX code. Errors in files raise :class:`PoseFileError`
 from __future__ import annotations
 
 import math
+import warnings
 from typing import NamedTuple, Optional
 
 import jax
@@ -37,7 +38,17 @@ __all__ = [
     "transform_poses",
     "quaternions_to_matrices",
     "matrices_to_quaternions",
+    "REGARD_DISTANCE_RANGE",
+    "MAX_CAMERA_SPEED",
 ]
+
+#: Plausible range (metres) of the median distance between the two cameras of a calibration
+#: session, people looking at each other's camera: outside it, positions are not in metres.
+REGARD_DISTANCE_RANGE = (0.2, 50.0)
+#: The fastest plausible median speed (m/s) of a head-mounted camera between frames.
+MAX_CAMERA_SPEED = 10.0
+#: Two cameras closer than this (metres) are at the same place: no two heads are.
+_COINCIDENT = 0.01
 
 class CameraPoses(NamedTuple):
     """Poses of one camera over ``T`` frames, in our camera convention.
@@ -232,7 +243,14 @@ def points_of_regard(poses_a: CameraPoses, poses_b: CameraPoses) -> np.ndarray:
     ``y_i = R_A,i (C_B,i − C_A,i)`` (Park et al. 2012, Sec. 3.2), ``(T, 3)`` in
     metres, with +x A's optical axis. The two sequences must already be
     matched (same length, row ``i`` the same moment): use :func:`match_frames`.
-    Raises ``ValueError`` if their lengths differ.
+
+    Units are checked at the door. Raises ``ValueError`` if the lengths differ; if
+    the two cameras are less than 1 cm apart in half the frames or more (the same
+    pose track twice: every point of regard would be zero); or if the median
+    distance ``‖y_i‖`` is outside :data:`REGARD_DISTANCE_RANGE`, naming the likely
+    unit (millimetres, centimetres). Warns when a track with timestamps moves faster
+    than :data:`MAX_CAMERA_SPEED` (median over frames), or when a few frames have
+    the cameras at the same place.
     """
     poses_a = as_camera_poses(poses_a, "poses_a")
     poses_b = as_camera_poses(poses_b, "poses_b")
@@ -241,7 +259,61 @@ def points_of_regard(poses_a: CameraPoses, poses_b: CameraPoses) -> np.ndarray:
             f"points_of_regard: poses_a has {poses_a.num_frames} frames and poses_b "
             f"{poses_b.num_frames}; match them first with match_frames"
         )
-    return np.einsum("tij,tj->ti", poses_a.R_camera_from_world, poses_b.centers - poses_a.centers)
+    y = np.einsum("tij,tj->ti", poses_a.R_camera_from_world, poses_b.centers - poses_a.centers)
+    _check_session_units(poses_a, poses_b, np.linalg.norm(y, axis=-1))
+    return y
+
+
+def _check_session_units(poses_a: CameraPoses, poses_b: CameraPoses, distances: np.ndarray) -> None:
+    """The door checks of :func:`points_of_regard` on the distances ``‖C_B − C_A‖`` (metres)."""
+    num_frames = distances.shape[0]
+    if num_frames == 0 or not np.all(np.isfinite(distances)):
+        return  # calibrate_cone names NaN/inf frames
+    coincident = distances < _COINCIDENT
+    if 2 * np.count_nonzero(coincident) >= num_frames:
+        if np.array_equal(poses_a.centers, poses_b.centers) and np.array_equal(poses_a.R_camera_from_world,
+                                                                               poses_b.R_camera_from_world):
+            raise ValueError(f"the two pose tracks are identical in all {num_frames} matched frame(s) (the same "
+                             "file twice?), so every point of regard is zero: the second must be the partner's "
+                             "camera poses")
+        raise ValueError(f"the two cameras are less than {100 * _COINCIDENT:g} cm apart in "
+                         f"{np.count_nonzero(coincident)} of {num_frames} matched frame(s) (first: frame "
+                         f"{int(poses_a.frame_ids[np.argmax(coincident)])}), so those points of regard are zero: "
+                         "poses of the same wearer twice?")
+    if coincident.any():
+        warnings.warn(f"the two cameras are less than {100 * _COINCIDENT:g} cm apart in "
+                      f"{np.count_nonzero(coincident)} of {num_frames} matched frame(s) (first: frame "
+                      f"{int(poses_a.frame_ids[np.argmax(coincident)])}); those points of regard are ≈ 0",
+                      stacklevel=3)
+    median = float(np.median(distances[~coincident]))
+    low, high = REGARD_DISTANCE_RANGE
+    where = f"points of regard up to {float(distances.max()):.3g} m away, median {median:.3g} m"
+    if median > high:
+        unit = "millimetres" if median > 300.0 else "centimetres"
+        raise ValueError(f"positions look like {unit} ({where}; two people looking at each other's camera are "
+                         f"{low:g}–{high:g} m apart): poses must be in metres")
+    if median < low:
+        raise ValueError(f"positions look too small for metres ({where}; two people looking at each other's camera "
+                         f"are {low:g}–{high:g} m apart): poses must be in metres (an SfM reconstruction "
+                         "without metric scale?)")
+    for name, poses in (("A", poses_a), ("B", poses_b)):
+        speed = _median_speed(poses)
+        if speed > MAX_CAMERA_SPEED:
+            unit = "millimetres" if speed > 300 else "centimetres" if speed > 30 else "decimetres"
+            warnings.warn(f"camera {name} moves at a median {speed:.3g} m/s between frames (a head-mounted camera "
+                          f"moves at most {MAX_CAMERA_SPEED:g} m/s): positions look like {unit}, or timestamps "
+                          "are not in seconds; poses must be in metres and timestamps in seconds", stacklevel=3)
+
+
+def _median_speed(poses: CameraPoses) -> float:
+    """Median ``‖ΔC‖ / Δt`` over consecutive frames with ``Δt > 0`` (m/s); 0 without timestamps."""
+    if poses.timestamps is None or poses.num_frames < 2:
+        return 0.0
+    order = np.argsort(poses.timestamps, kind="stable")
+    dt = np.diff(poses.timestamps[order])
+    step = np.linalg.norm(np.diff(poses.centers[order], axis=0), axis=-1)
+    moving = dt > 0
+    return float(np.median(step[moving] / dt[moving])) if moving.any() else 0.0
 
 
 def transform_poses(poses: CameraPoses, scale, R, t) -> CameraPoses:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import warnings
 from typing import Sequence
 
 import equinox as eqx
@@ -12,9 +14,66 @@ from jaxtyping import Array, Bool, Float
 
 from jaxgaze.geometry import unit
 
-__all__ = ["GazeRays"]
+__all__ = ["GazeRays", "UnitWarning", "check_units", "check_bandwidth", "MAX_BANDWIDTH", "PLAUSIBLE_BANDWIDTH",
+           "PLAUSIBLE_SCENE_EXTENT"]
 
 _MIN_DIRECTION_NORM = 1e-9
+
+#: No gaze cone is this wide (radians, 57°): a bandwidth this large is an error (degrees given as radians?).
+MAX_BANDWIDTH = 1.0
+#: A gaze cone wider than this (radians, 29°; head pose alone gives about 0.2–0.3) is implausible: a warning.
+PLAUSIBLE_BANDWIDTH = 0.5
+#: The eyes of one frame spread over more than this (metres) are implausible for one scene: a warning (millimetres?).
+PLAUSIBLE_SCENE_EXTENT = 100.0
+
+
+class UnitWarning(UserWarning):
+    """A value outside its plausible range, most likely given in the wrong unit (degrees? millimetres?)."""
+
+
+def check_bandwidth(bandwidth, what: str = "bandwidth") -> None:
+    """Raise ``ValueError`` if a bandwidth ``h`` (radians) reaches :data:`MAX_BANDWIDTH`: a cone whose
+    angular standard deviation is a radian or more says nothing about where a person looks,
+    and the likely mistake is degrees (``3`` meant as 3° is 0.0524 rad)."""
+    h = np.asarray(bandwidth, dtype=float)
+    if h.size and np.nanmax(h) >= MAX_BANDWIDTH:
+        top = float(np.nanmax(h))
+        raise ValueError(
+            f"{what} {top:g} rad ({math.degrees(top):.0f}°) is no gaze cone width: it is in radians "
+            f"(degrees? {top:g}° is {math.radians(top):.3g} rad)"
+        )
+
+
+def check_units(rays: "GazeRays") -> None:
+    """Catch unit mistakes at the door of the concurrence search (concrete rays only).
+
+    * A bandwidth of :data:`MAX_BANDWIDTH` (1 rad) or more is an error (:func:`check_bandwidth`).
+    * A bandwidth over :data:`PLAUSIBLE_BANDWIDTH` (0.5 rad) is a :class:`UnitWarning` (degrees?).
+    * Eyes of one frame spread over more than :data:`PLAUSIBLE_SCENE_EXTENT` (100 m, the largest
+      coordinate range of the frame's real rays) is a :class:`UnitWarning` (millimetres?): in
+      millimetres a room is thousands of "metres" across and no concurrence is found.
+    """
+    if not _is_concrete(rays.origins, rays.bandwidth, rays.mask):
+        return
+    mask = np.asarray(rays.mask, dtype=bool)
+    if not mask.any():
+        return
+    h = np.asarray(rays.bandwidth, dtype=float)[mask]
+    check_bandwidth(h)
+    if h.max() > PLAUSIBLE_BANDWIDTH:
+        warnings.warn(f"bandwidth reaches {h.max():g} rad ({math.degrees(h.max()):.0f}°), implausibly wide for a "
+                      f"gaze cone: it is in radians (degrees? {h.max():g}° is {math.radians(h.max()):.3g} rad)",
+                      UnitWarning, stacklevel=3)
+    origins = np.asarray(rays.origins, dtype=float).reshape(-1, mask.shape[-1], 3)
+    frames = mask.reshape(-1, mask.shape[-1])
+    high = np.where(frames[..., None], origins, -np.inf).max(axis=1)
+    low = np.where(frames[..., None], origins, np.inf).min(axis=1)
+    spread = np.where(frames.any(axis=1), (high - low).max(axis=1), 0.0)
+    if spread.max() > PLAUSIBLE_SCENE_EXTENT:
+        frame = int(np.argmax(spread))
+        where = f"frame {frame}" if len(spread) > 1 else "the frame"
+        warnings.warn(f"the eyes of {where} spread over {spread.max():.4g} m, implausibly far for one scene: "
+                      "origins are in metres (millimetres?)", UnitWarning, stacklevel=3)
 
 
 def _is_concrete(*arrays) -> bool:

@@ -2,6 +2,7 @@
 
 import io
 import math
+from types import SimpleNamespace
 
 import matplotlib
 import numpy as np
@@ -11,7 +12,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
 
 from jaxgaze import Concurrences, GazeRays, saliency_field_grid, track_concurrences
-from jaxgaze.plotting import ELLIPSE_LEVEL, plot_counts, plot_top_view, plot_trajectories
+from jaxgaze.plotting import ELLIPSE_LEVEL, plot_counts, plot_scene_story, plot_top_view, plot_trajectories
 
 matplotlib.use("Agg")
 
@@ -102,7 +103,7 @@ def test_top_view_padded_frame_none_and_given_axes(frame):
     # A padded frame of find_concurrences_over_frames: invalid slots are not drawn.
     padded = Concurrences(
         *(np.concatenate([np.asarray(a), np.zeros((1,) + np.asarray(a).shape[1:], np.asarray(a).dtype)])
-          if name != "membership" else np.asarray(a) for name, a in conc._asdict().items())
+          if name != "membership" and a is not None else a for name, a in conc._asdict().items())
     )
     assert padded.valid.tolist() == [True, True, False]
     fig = Figure()
@@ -187,3 +188,70 @@ def test_counts():
     assert fig.axes[0].get_xlabel() == "time (s)" and by_gid(fig.axes[0], "true K") == []
     with pytest.raises(ValueError, match="shape"):
         plot_counts(counts, truth[:3])
+
+
+def test_top_view_estimate_drawn_above_a_hollow_truth(frame):
+    """The estimate is a filled dot above the truth, which is a hollow ring: neither hides the other."""
+    rays, conc = frame
+    fig = plot_top_view(rays, conc, truth=POINTS + 0.01, grid_shape=(24, 20, 10), inset=False)
+    ax = fig.axes[0]
+    (modes,) = by_gid(ax, "modes")
+    (truth,) = by_gid(ax, "truth")
+    assert modes.get_zorder() > truth.get_zorder()
+    assert len(truth.get_facecolors()) == 0 and len(truth.get_edgecolors()) > 0  # unfilled
+    assert np.all(modes.get_facecolors()[:, 3] == 1.0)
+    assert ax.child_axes == []  # inset=False
+
+
+def test_top_view_zoom_inset_shows_the_ellipse_of_the_mode_with_most_rays(frame):
+    """The 90 % ellipses are centimetres across on a plot metres wide: the inset zooms on the mode
+    with the most rays so that its ellipse fills a good part of the inset, with a scale bar."""
+    rays, conc = frame
+    conc = conc._replace(num_rays=np.array([3, 4], np.int32))  # mode 1 has the most rays
+    truth = POINTS + [[0.0, 0.0, 0.0], [0.03, -0.02, 0.0]]
+    fig = plot_top_view(rays, conc, truth=truth, grid_shape=(24, 20, 10))
+    ax = fig.axes[0]
+    (zoom,) = ax.child_axes
+    assert zoom.get_gid() == "zoom"
+    (ellipse,) = [e for e in by_gid(zoom, "mode ellipse") if np.allclose(e.center, POINTS[1, :2], atol=1e-6)]
+    (x0, x1), (y0, y1) = zoom.get_xlim(), zoom.get_ylim()
+    half = max(ellipse.width, ellipse.height) / 2
+    # the whole ellipse and the nearby truth are inside the inset, and the ellipse spans much of it
+    assert x0 < POINTS[1, 0] - half and POINTS[1, 0] + half < x1 and y0 < POINTS[1, 1] - half < POINTS[1, 1] + half < y1
+    assert x0 < truth[1, 0] < x1 and y0 < truth[1, 1] < y1
+    assert 2 * half > 0.25 * (x1 - x0)
+    main_width = np.diff(ax.get_xlim())[0]
+    assert 2 * half < 0.05 * main_width  # too small to see in the main axes: hence the zoom
+    (modes,) = by_gid(zoom, "modes")
+    assert by_gid(zoom, "truth")[0].get_zorder() < modes.get_zorder()
+    (bar,) = by_gid(zoom, "scale bar")
+    label = bar.txt_label.get_text()
+    assert label.endswith(" cm") and 0 < float(label.split()[0]) / 100 < (x1 - x0)
+    fig.savefig(io.BytesIO(), format="png")
+
+
+def test_scene_story_one_colour_scale_and_one_colorbar(frame):
+    """The phase panels share one norm (the min and max of every panel's image), one colour bar and one legend."""
+    rays, conc = frame
+    targets = np.asarray(rays.origins) + np.asarray(rays.directions)
+    sharp = GazeRays(EYES, targets - EYES, 0.02)  # phase 1: sharper cones, a higher field maximum
+    T = 4
+    over = Concurrences(*(None if a is None else np.stack([np.asarray(a)] * T) for a in conc))
+    scene = SimpleNamespace(
+        rays=GazeRays.stack([rays, rays, sharp, sharp]), concurrences=np.stack([POINTS] * T),
+        concurrence_valid=np.ones((T, 2), bool), phase=np.array([0, 0, 1, 1]), fps=10.0, num_frames=T,
+        name="two phases", num_people=len(EYES), true_count=np.full(T, 2),
+    )
+    fig = plot_scene_story(scene, over, track_concurrences(over))
+    panels = [ax for ax in fig.axes if by_gid(ax, "saliency MIP")]
+    assert len(panels) == 2
+    images = [by_gid(ax, "saliency MIP")[0] for ax in panels]
+    maxima = [float(np.max(im.get_array())) for im in images]
+    assert maxima[1] > 1.5 * maxima[0]  # so separate scales would differ
+    assert images[0].norm is images[1].norm
+    assert images[0].get_clim() == pytest.approx((min(float(np.min(im.get_array())) for im in images), max(maxima)))
+    colorbars = [ax for ax in fig.axes if getattr(ax, "_colorbar", None) is not None]
+    assert len(colorbars) == 1 and colorbars[0]._colorbar.mappable.norm is images[0].norm
+    assert all(len(ax.child_axes) == 1 for ax in panels)  # a zoom inset in each phase
+    assert all(ax.get_legend() is None for ax in panels) and len(fig.legends) == 1  # one legend for the phases
+    fig.savefig(io.BytesIO(), format="png")

@@ -1,6 +1,7 @@
 """Camera poses: COLMAP/CSV readers and writers, the OpenCV → ours camera
 conversion, frame matching, points of regard, and the similarity alignment."""
 
+import warnings
 from pathlib import Path
 
 import jax
@@ -12,7 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from jaxgaze.geometry import apply_similarity, similarity_alignment
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.poses import PoseFileError, read_colmap_images, read_pose_csv, write_colmap_images, write_pose_csv
+from jaxgaze.io.poses import (PoseFileError, read_colmap_images, read_pose_csv, read_poses, write_colmap_images,
+                              write_pose_csv)
 from jaxgaze.poses import CameraPoses, match_frames, points_of_regard, transform_poses
 
 DATA = Path(__file__).parent / "data"
@@ -110,11 +112,108 @@ def test_colmap_round_trip_random_poses(tmp_path):
     np.testing.assert_allclose(again.centers, poses.centers[order], atol=1e-12)
 
 
-def test_colmap_frame_from_image_id_when_name_has_no_digits(tmp_path):
-    path = _write(tmp_path, "5 1 0 0 0 0 0 0 1 left.jpg\n\n2 1 0 0 0 1 0 0 1 sub/dir/img_12.png\n\n", "images.txt")
+def _colmap(names, camera_ids=None):
+    """images.txt text: identity poses 1 m apart along x, one image per name."""
+    camera_ids = camera_ids or [1] * len(names)
+    return "".join(f"{k + 1} 1 0 0 0 {-float(k)} 0 0 {c} {n}\n\n" for k, (n, c) in enumerate(zip(names, camera_ids)))
+
+
+def test_colmap_frame_from_image_id_when_no_name_has_digits(tmp_path):
+    path = _write(tmp_path, "5 1 0 0 0 0 0 0 1 left.jpg\n\n2 1 0 0 0 1 0 0 1 sub/dir/right.png\n\n", "images.txt")
     poses = read_colmap_images(path)
-    assert poses.frame_ids.tolist() == [5, 12]
-    np.testing.assert_allclose(poses.centers[1], [-1, 0, 0])
+    assert poses.frame_ids.tolist() == [2, 5]
+    np.testing.assert_allclose(poses.centers[0], [-1, 0, 0])
+    assert read_poses(path).frame_ids_from == "IMAGE_ID (the image names hold no digits)"
+
+
+def test_colmap_frame_ids_from_the_number_that_changes(tmp_path):
+    """Cityscapes-like names: the frame is the one number that changes, not the 8 of 'leftImg8bit'."""
+    names = [f"aachen_000003_{f:06d}_leftImg8bit.png" for f in (21, 19, 20)]
+    track = read_poses(_write(tmp_path, _colmap(names), "images.txt"))
+    assert track.poses.frame_ids.tolist() == [19, 20, 21]
+    np.testing.assert_allclose(track.poses.centers[:, 0], [1, 2, 0])  # frame 19 is image 2, 1 m along x
+    assert track.frame_ids_from == ("the one number that changes in the image names "
+                                    "(e.g. 'aachen_000003_000021_leftImg8bit.png' → 21)")
+    # Two numbers that change together are the same frame id; one number per name is that number.
+    same = read_colmap_images(_write(tmp_path, _colmap(["000021/000021.png", "000022/000022.png"]), "same.txt"))
+    assert same.frame_ids.tolist() == [21, 22]
+    one = read_poses(_write(tmp_path, _colmap(["sub/img_12.png", "sub/img_7.png"]), "one.txt"))
+    assert one.poses.frame_ids.tolist() == [7, 12] and one.frame_ids_from.startswith("the number in the image names")
+
+
+@pytest.mark.parametrize("names, words, line", [
+    (["left.jpg", "sub/dir/img_12.png"], "different numbers of digit runs ('left.jpg' has 0, 'sub/dir/img_12.png' "
+                                         "has 1)", 3),
+    (["cam1/f_000021.png", "cam2/f_000022.png"], "hold 2 numbers that change from image to image", 1),
+    (["a_1_2.png"], "hold 2 numbers that could each be the frame id", 1),
+])
+def test_colmap_ambiguous_frame_ids_are_an_error(tmp_path, names, words, line):
+    path = _write(tmp_path, _colmap(names), "images.txt")
+    with pytest.raises(PoseFileError, match="frame ids are ambiguous") as info:
+        read_colmap_images(path)
+    assert words in str(info.value) and "give a frame pattern" in str(info.value)
+    assert info.value.line == line
+
+
+def test_colmap_frame_pattern(tmp_path):
+    names = ["cam1/f_000021.png", "cam2/f_000022.png"]
+    path = _write(tmp_path, _colmap(names), "images.txt")
+    track = read_poses(path, frame_pattern=r"f_(\d+)\.png$")
+    assert track.poses.frame_ids.tolist() == [21, 22]
+    assert track.frame_ids_from == r"the image names by the pattern 'f_(\d+)\.png$'"
+    assert read_colmap_images(path, frame_pattern=r"cam(\d)").frame_ids.tolist() == [1, 2]
+    with pytest.raises(PoseFileError, match=r"image name 'cam2/f_000022.png' does not match") as info:
+        read_colmap_images(path, frame_pattern=r"(\d+)1\.png")
+    assert info.value.line == 3
+    with pytest.raises(PoseFileError, match="picks 'f' out of image name"):
+        read_colmap_images(path, frame_pattern=r"/(\w)_")
+    for pattern, message in ((r"\d+", "exactly one group"), (r"(\d)(\d)", "exactly one group"),
+                             ("(x", "not a regular expression")):
+        with pytest.raises(ValueError, match=message):
+            read_colmap_images(path, frame_pattern=pattern)
+
+
+def test_colmap_frame_id_too_large(tmp_path):
+    path = _write(tmp_path, _colmap(["f_1.png", "f_99999999999999999999.png"]), "images.txt")
+    with pytest.raises(PoseFileError, match="frame id 99999999999999999999 in image name .* is too large") as info:
+        read_colmap_images(path)
+    assert info.value.line == 3
+
+
+JOINT = DATA / "colmap_joint_images.txt"
+
+
+def test_colmap_joint_reconstruction_select_one_wearer():
+    """Two wearers in one reconstruction: selected by CAMERA_ID or by name prefix, the same poses."""
+    ann, ben = read_poses(JOINT, camera_id=1), read_poses(JOINT, name_prefix="ben/")
+    for track in (ann, ben):
+        assert track.poses.frame_ids.tolist() == list(range(30))
+        assert track.frame_ids_from.startswith("the one number that changes in the image names")
+    assert ann.selection == "30 of 60 images, CAMERA_ID 1" and ben.selection == "30 of 60 images, names starting with 'ben/'"
+    assert ann.describe().startswith("colmap_joint_images.txt (30 of 60 images, CAMERA_ID 1): frame ids from ")
+    same = read_colmap_images(JOINT, name_prefix="ann/", camera_id=1)
+    np.testing.assert_array_equal(same.centers, ann.poses.centers)
+    np.testing.assert_array_equal(read_colmap_images(JOINT, camera_id=2).centers, ben.poses.centers)
+    # The two cameras face each other: each sees the other ahead (+x) at 1-4 m.
+    y = points_of_regard(ann.poses, ben.poses)
+    assert np.all(y[:, 0] > 0.5) and np.all(np.linalg.norm(y, axis=1) < 5)
+    with pytest.raises(PoseFileError, match=r"duplicate frame 0 \(first on line 11\) \(several wearers' images\? "
+                                            "select one wearer's images by camera id or name prefix") as info:
+        read_colmap_images(JOINT)
+    assert info.value.line == 13
+    with pytest.raises(PoseFileError, match=r"no image has CAMERA_ID 3 \(the file's camera ids: 1, 2\)"):
+        read_colmap_images(JOINT, camera_id=3)
+    with pytest.raises(PoseFileError, match="no image name starts with 'ben/' among those of CAMERA_ID 1"):
+        read_colmap_images(JOINT, camera_id=1, name_prefix="ben/")
+
+
+def test_read_poses_csv_reports_its_frame_column(tmp_path):
+    path = _write(tmp_path, CSV_HAPPY)
+    track = read_poses(path)
+    assert track.poses.frame_ids.tolist() == [1, 2] and track.frame_ids_from == "its 'frame' column"
+    assert track.describe() == "poses.csv: frame ids from its 'frame' column"
+    with pytest.raises(PoseFileError, match="selects images of a COLMAP images.txt"):
+        read_poses(path, camera_id=1)
 
 
 @pytest.mark.parametrize(
@@ -321,6 +420,59 @@ def test_points_of_regard_invariant_under_similarity_of_world():
     y = points_of_regard(a, b)
     y2 = points_of_regard(transform_poses(a, 2.0, R, [1, 2, 3]), transform_poses(b, 2.0, R, [1, 2, 3]))
     np.testing.assert_allclose(y2, 2.0 * y, atol=1e-12)
+
+
+def _facing_pair(scale=1.0, num_frames=8, timestamps=None):
+    """A at the origin, B 1.5-3 m ahead along world +x (in metres × ``scale``); R = I for both."""
+    R = np.tile(np.eye(3), (num_frames, 1, 1))
+    ahead = np.linspace(1.5, 3.0, num_frames)
+    a = _poses(R, np.zeros((num_frames, 3)), range(num_frames), timestamps)
+    b = _poses(R, scale * np.stack([ahead, 0.1 * np.ones(num_frames), np.zeros(num_frames)], 1), range(num_frames),
+               timestamps)
+    return a, b
+
+
+@pytest.mark.parametrize("scale, words", [
+    (1000.0, "positions look like millimetres (points of regard up to 3e+03 m away, median 2.25e+03 m"),
+    (100.0, "positions look like centimetres (points of regard up to 300 m away, median 225 m"),
+    (0.01, "positions look too small for metres (points of regard up to 0.03 m away, median 0.0225 m"),
+])
+def test_points_of_regard_outside_a_room_name_the_unit(scale, words):
+    a, b = _facing_pair(scale)
+    with pytest.raises(ValueError, match="poses must be in metres") as info:
+        points_of_regard(a, b)
+    assert words in str(info.value)
+    points_of_regard(*_facing_pair(1.0))  # metres pass
+
+
+def test_points_of_regard_of_the_same_track_twice():
+    """The same file twice: every point of regard is zero, and the error says why (not 'behind the camera')."""
+    a = _random_poses(np.random.default_rng(3), range(6))
+    with pytest.raises(ValueError, match=r"the two pose tracks are identical in all 6 matched frame\(s\) \(the same "
+                                         r"file twice\?\), so every point of regard is zero"):
+        points_of_regard(a, a)
+    turned = a._replace(R_camera_from_world=a.R_camera_from_world[::-1].copy())  # same centres, other rotations
+    with pytest.raises(ValueError, match=r"less than 1 cm apart in 6 of 6 matched frame\(s\) \(first: frame 0\)"):
+        points_of_regard(a, turned)
+
+
+def test_points_of_regard_warn_about_a_few_coincident_frames_and_speed():
+    a, b = _facing_pair(1.0, timestamps=np.arange(8) / 30)
+    b = b._replace(centers=b.centers.copy())
+    b.centers[5] = a.centers[5]
+    with pytest.warns(UserWarning, match=r"less than 1 cm apart in 1 of 8 matched frame\(s\) \(first: frame 5\)"):
+        points_of_regard(a, b)
+    # B moves 0.21 m per 1/30 s, 6.4 m/s: plausible. The same poses stamped in minutes are not.
+    a, b = _facing_pair(1.0, timestamps=np.arange(8) / 30)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        points_of_regard(a, b)
+    a, b = _facing_pair(1.0, timestamps=np.arange(8) / 1800)
+    with pytest.warns(UserWarning) as caught:
+        points_of_regard(a, b)
+    assert [str(w.message) for w in caught] == [
+        "camera B moves at a median 386 m/s between frames (a head-mounted camera moves at most 10 m/s): positions "
+        "look like millimetres, or timestamps are not in seconds; poses must be in metres and timestamps in seconds"]
 
 
 # ---------------------------------------------------------------------------

@@ -280,3 +280,25 @@ def test_from_rows_equals_stacking_frames_in_row_order():
         np.testing.assert_allclose(np.asarray(getattr(rays, field)), np.asarray(getattr(expected, field)), atol=1e-6)
     with pytest.raises(ValueError, match="zero length"):
         GazeRays.from_rows([1, 1], origins[:2], np.zeros((2, 3)))
+
+
+def test_check_units_ignores_padding_and_names_the_unit():
+    """Padded slots carry a placeholder bandwidth of 1 rad: only real rays are checked."""
+    import warnings
+
+    from jaxgaze.rays import UnitWarning, check_bandwidth, check_units
+
+    two = GazeRays([[0.0, 0, 1.6], [2.0, 0, 1.6]], [[1.0, 0, 0], [-1.0, 0, 0]], 0.05)
+    three = GazeRays([[0.0, 0, 1.6], [2.0, 0, 1.6], [1.0, 3.0, 1.2]], [[1.0, 0, 0], [-1.0, 0, 0], [0, -1.0, 0]], 0.05)
+    recording = GazeRays.stack([two, three])
+    assert float(recording.bandwidth[0, 2]) == 1.0 and not bool(recording.mask[0, 2])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_units(recording)
+        check_bandwidth(0.99)
+    with pytest.raises(ValueError, match=r"--bandwidth 1 rad \(57°\) is no gaze cone width.*degrees\?"):
+        check_bandwidth(1.0, "--bandwidth")
+    with pytest.warns(UnitWarning, match=r"bandwidth reaches 0.6 rad"):
+        check_units(GazeRays(two.origins, two.directions, 0.6))
+    with pytest.warns(UnitWarning, match=r"spread over 150 m"):
+        check_units(GazeRays([[0.0, 0, 1.6], [150.0, 0, 1.6]], two.directions, 0.05))

@@ -242,13 +242,16 @@ def adapt_bias(
     who = "the partner" if partner is None else f"partner '{partner}'"
     if not candidates.any():
         speech = ""
-        if isinstance(partner_speaking, SpeechSegments) and len(partner_speaking.start):
-            speech = (f" (speech from {float(np.min(partner_speaking.start)):g} to "
-                      f"{float(np.max(partner_speaking.end)):g} s)")
+        if isinstance(partner_speaking, SpeechSegments):  # the partner's own segments
+            own = np.asarray([s == partner for s in partner_speaking.speaker], dtype=bool)
+            speech = (f" ({who} speaks from {float(np.min(partner_speaking.start[own])):g} to "
+                      f"{float(np.max(partner_speaking.end[own])):g} s)") if own.any() else f" ({who} never speaks)"
+        spoken = int((speaking & in_window).sum())
         raise BiasInputError(f"no selectable frames: in the first {window_s:g} s ({int(in_window.sum())} frames, "
-                             f"{times[0]:g}-{times[in_window][-1]:g} s) {who} speaks in "
-                             f"{int((speaking & in_window).sum())}, and in none of those is the head within "
-                             f"{max_head_angle_deg:g} degrees of the target{speech}", "partner_speaking")
+                             f"{times[0]:g}-{times[in_window][-1]:g} s) {who} speaks in {spoken} frame"
+                             f"{'' if spoken == 1 else 's'}" + (f", and in none of those is the head within "
+                             f"{max_head_angle_deg:g} degrees of the target" if spoken else "") + speech,
+                             "partner_speaking")
     if method == "lmeds" and candidates.sum() < 3:
         raise BiasInputError(f"lmeds needs at least 3 selectable frames, found {int(candidates.sum())}: use method "
                              "'mean' or 'bayes', or a longer window", "partner_speaking")

@@ -1,7 +1,7 @@
 """Command-line interface: ``jaxgaze demo``, ``concurrences``, ``calibrate``, ``bias``, ``joint``, ``attend`` and ``fit-gaze``.
 
 One module per command, each ``read (jaxgaze.io) → library call → write (jaxgaze.io) → one
-summary line``: :mod:`~jaxgaze.cli.demo` (a simulated meeting against the truth),
+summary line``: :mod:`~jaxgaze.cli.demo` (a simulated scene, ``--scene``, against the truth),
 :mod:`~jaxgaze.cli.concurrences` (gaze concurrences, Park et al. 2012),
 :mod:`~jaxgaze.cli.calibrate` (a wearer's gaze ray), :mod:`~jaxgaze.cli.bias` (speaker-prior
 gaze bias, Siegfried et al. 2017), :mod:`~jaxgaze.cli.joint` (biases, cone widths, who looks at whom
@@ -14,11 +14,13 @@ success (``joint`` and ``calibrate --posterior``: 1 when the fit did not succeed
 from __future__ import annotations
 
 import argparse
+import sys
 
 from jaxgaze.cli import attend, bias, calibrate, concurrences, demo, fit_gaze, joint
-from jaxgaze.cli._common import run_command
+from jaxgaze.cli._common import negative_values_joined, run_command
+from jaxgaze.cli._interrupt import exit_status, handle_interrupts
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "console_main", "build_parser"]
 
 #: The command modules, in the order of ``jaxgaze --help``.
 COMMANDS = (demo, concurrences, calibrate, bias, joint, attend, fit_gaze)
@@ -44,6 +46,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    """Entry point of the ``jaxgaze`` command; returns the exit status (usage errors: argparse exits 2)."""
-    args = build_parser().parse_args(argv)
+    """Entry point of the ``jaxgaze`` command; returns the exit status (usage errors: argparse exits 2).
+    A value such as ``--targets -1.7,0,2`` is read as the option's value (:func:`negative_values_joined`)."""
+    args = build_parser().parse_args(negative_values_joined(sys.argv[1:] if argv is None else argv))
     return run_command(args.run, args)
+
+
+def console_main() -> None:
+    """The ``jaxgaze`` console script: :func:`main` on ``sys.argv``, exit with its status.
+
+    Ctrl-C ends it with status 130 and no output file (:mod:`~jaxgaze.cli._interrupt`),
+    through ``os._exit``: the interpreter's normal shutdown, with XLA's threads still running the
+    interrupted computation, can crash. :func:`main`, run in-process, returns 130 instead.
+    """
+    handle_interrupts()
+    raise SystemExit(exit_status(main()))

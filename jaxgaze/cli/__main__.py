@@ -1,6 +1,6 @@
 """``python -m jaxgaze.cli``: the ``jaxgaze`` command."""
 
-from jaxgaze.cli import main
+from jaxgaze.cli import console_main
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    console_main()

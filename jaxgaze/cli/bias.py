@@ -3,20 +3,19 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import warnings
 
 import jax
 
 from jaxgaze.bias.adapt import DEFAULT_NUM_FRAMES, BIAS_FRAME_COLUMNS, BiasInputError, adapt_bias
-from jaxgaze.bias.speech import choose_partner, speaking_at
-from jaxgaze.cli._common import (CommandError, check_output, int_at_least, positive_float, show_progress, summary,
-                                 warn, writing)
+from jaxgaze.bias.speech import choose_partner
+from jaxgaze.cli._common import (CommandError, add_output, add_quiet, int_at_least, positive_float, show_progress,
+                                 summary, warn, writing)
 from jaxgaze.io.bias_report import BIAS_JSON_FORMAT, bias_record, write_bias_report
-from jaxgaze.io.gaze import GazeFileError, parse_point, read_gaze, read_targets_csv
-from jaxgaze.io.speech import SpeechFileError, read_rttm, read_segments_csv
-from jaxgaze.io.text import InputFileError, read_text
+from jaxgaze.io.gaze import REFERENCE_AXES, GazeFileError, parse_point, read_gaze, read_targets_csv
+from jaxgaze.io.joint import read_speech
+from jaxgaze.io.text import InputFileError
 from jaxgaze.results import RESULTS
 
 _DESCRIPTION = """\
@@ -36,7 +35,8 @@ GAZE.csv is one of
     pose_Rx columns (--face-id, --min-confidence). Its gaze and head pose are
     converted to our camera frame (+x forward along the optical axis, +y left,
     +z up; metres), and the eyes are taken at OpenFace's head position pose_T.
-    --targets is required and is in that camera frame.
+    --targets is required and is in that camera frame: e.g. -0.2,0,0.4 is
+    0.2 m behind the camera and 0.4 m above it.
   * a CSV with a header row and one row per frame (columns in any order,
     case-insensitive; other columns ignored):
       frame            integer frame id
@@ -53,7 +53,7 @@ clock (seconds). A --targets CSV (frame, tx, ty, tz) must cover every frame.
 """ + BIAS_JSON_FORMAT + """\
 A bayes posterior that did not mix (posterior.result not_mixed) is written, and
 the command exits 1 with one line on stderr. Reader warnings (dropped frames, merged speech segments) go to stderr as
-'jaxgaze: warning: ...' lines and do not fail the command.
+'jaxgaze: warning: ...' lines and do not fail the command; if it then fails, its one error line ends with them.
 """
 _SAMPLES = 500
 
@@ -68,11 +68,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                                        "CSV or the CSV described above")
     a("--speech", required=True, metavar="SEGMENTS", help="who speaks when: RTTM (.rttm) or CSV (.csv: start, end, "
       "speaker; seconds); another extension is read as RTTM if it has SPEAKER lines, else as CSV")
-    a("--out", required=True, metavar="BIAS.json", help="output JSON (replaced only on success)")
-    a("--targets", default=None, metavar="X,Y,Z|TARGETS.csv", help="the partner's eye midpoint (metres; camera frame "
-      "for OpenFace input, else world frame): a constant point X,Y,Z (write --targets=-1,0,0 when it starts with "
-      "'-') or a CSV with columns frame, tx, ty, tz covering every frame of GAZE.csv; replaces GAZE.csv's tx, ty, tz "
-      "columns")
+    add_output(p, "--out", required=True, metavar="BIAS.json", help="output JSON (replaced only on success)")
+    a("--targets", default=None, metavar="X,Y,Z|TARGETS.csv", help="the partner's eye midpoint in metres: for OpenFace "
+      "input in our camera frame (+x forward along the optical axis, +y left, +z up; not OpenCV's x right, y down, z "
+      "forward), else in the world frame of GAZE.csv's ex, ey, ez: a constant point X,Y,Z (e.g. -0.2,0,0.4) or a "
+      "CSV with columns frame, tx, ty, tz covering every frame of GAZE.csv; replaces GAZE.csv's tx, ty, tz columns")
     a("--partner", default=None, metavar="SPEAKER",
       help="speaker id of the partner in SEGMENTS (required unless SEGMENTS has one speaker)")
     a("--speech-file-id", default=None, metavar="ID",
@@ -98,21 +98,19 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
       help="OpenFace input: the face_id to use when the file has several faces")
     a("--min-confidence", type=float, default=0.75, metavar="C",
       help="OpenFace input: drop frames with confidence < C (default 0.75)")
-    a("--per-frame", default=None, metavar="PER_FRAME.csv", help="also write the per-frame table as CSV (columns "
-      + ", ".join(BIAS_FRAME_COLUMNS) + "; booleans as 0/1)")
-    a("-q", "--quiet", action="store_true",
-      help="no progress bar and no summary line on stderr (warnings and errors still go there)")
+    add_output(p, "--per-frame", what="per-frame table", default=None, metavar="PER_FRAME.csv", help="also write "
+               "the per-frame table as CSV (columns " + ", ".join(BIAS_FRAME_COLUMNS) + "; booleans as 0/1)")
+    add_quiet(p)
     return p
 
 
 def _targets(args, track):
     """``((T, 3) targets, where they came from)``: --targets (a point or a CSV), else GAZE.csv's columns."""
     if args.targets is None and track.target is None:
-        raise CommandError("an OpenFace file has no target positions: pass --targets X,Y,Z or a CSV of frame, tx, ty, "
-                           "tz (the partner's eye midpoint, camera frame +x forward, +y left, +z up, metres)"
-                           if track.format == "openface" else "no target positions: GAZE.csv has no tx, ty, tz "
-                           "columns; pass --targets X,Y,Z or a CSV of frame, tx, ty, tz (the partner's eye midpoint, "
-                           "world frame, metres)", args.gaze)
+        raise CommandError(("an OpenFace file has no target positions" if track.format == "openface" else "no target "
+                            "positions: GAZE.csv has no tx, ty, tz columns") + "; pass --targets X,Y,Z or a CSV of "
+                           f"frame, tx, ty, tz (the partner's eye midpoint, metres, {REFERENCE_AXES[track.reference]})",
+                           args.gaze)
     if args.targets is None:
         return track.target, "GAZE.csv columns tx, ty, tz"
     try:
@@ -139,16 +137,7 @@ def _times(args, track):
 
 def _speech(args):
     """``(segments, partner)`` from an RTTM or a CSV (by extension, else by content) and --partner."""
-    text = read_text(args.speech, SpeechFileError, "speech")
-    ids = list(dict.fromkeys(f[1] for f in map(str.split, text.splitlines()) if len(f) >= 2 and f[0] == "SPEAKER"))
-    ext = os.path.splitext(args.speech)[1].lower()
-    rttm = ext == ".rttm" or (ext != ".csv" and bool(ids))
-    if args.speech_file_id is not None and not rttm:
-        raise CommandError("--speech-file-id is only for RTTM speech files", args.speech)
-    if rttm and args.speech_file_id is None and len(ids) > 1:
-        raise CommandError(f"the RTTM holds several recordings (file ids {', '.join(ids)}); choose one with "
-                           "--speech-file-id", args.speech)
-    segments = read_rttm(args.speech, file_id=args.speech_file_id) if rttm else read_segments_csv(args.speech)
+    segments = read_speech(args.speech, file_id=args.speech_file_id)
     try:
         return segments, choose_partner(segments, args.partner, option="--partner")
     except ValueError as error:
@@ -160,11 +149,6 @@ def run(args) -> int:
     if args.method == "lmeds" and args.frames is not None and args.frames < 3:
         raise CommandError(f"--method lmeds needs --frames 3 or more, got {args.frames}: with fewer it cannot tell "
                            "the frames that look at the partner from the others")
-    check_output(args.out)
-    if args.per_frame is not None:
-        check_output(args.per_frame, "per-frame table")
-        if os.path.abspath(args.per_frame) == os.path.abspath(args.out):
-            raise CommandError("--per-frame and --out must be different files", args.out)
     try:
         with warnings.catch_warnings(record=True) as caught:  # printed once every input has been checked
             warnings.simplefilter("always")
@@ -172,15 +156,16 @@ def run(args) -> int:
             target, target_source = _targets(args, track)
             times, fps = _times(args, track)
             segments, partner = _speech(args)
-            speaking = speaking_at(segments, [partner], times)[0]
-        result = adapt_bias(track.gaze_angles, track.R_world_from_head, track.eye, target, times, speaking,
+        result = adapt_bias(track.gaze_angles, track.R_world_from_head, track.eye, target, times, segments,
                             partner=partner, frames=track.frame, method=args.method, num_frames=args.frames,
                             window_s=args.window, max_head_angle_deg=args.max_head_angle_deg,
                             threshold_deg=args.threshold_deg, key=jax.random.key(args.seed), num_warmup=args.samples,
                             num_samples=args.samples, progress_bar=show_progress(args))
-    except BiasInputError as error:
-        hint = f": is --targets in the {track.reference} frame, in metres?" if error.argument == "target" else ""
-        raise GazeFileError(f"{error}{hint}", args.gaze, track.line_of(error.index)) from None
+    except BiasInputError as error:  # every input was read: the one line keeps their warnings (dropped frames)
+        frame_hint = error.argument == "target" or "the head within" in str(error)
+        hint = f": is the target in the {REFERENCE_AXES[track.reference]}, in metres?" if frame_hint else ""
+        notes = "".join(f"; reader warning: {w.message}" for w in caught)
+        raise GazeFileError(f"{error}{hint}{notes}", args.gaze, track.line_of(error.index)) from None
     except InputFileError:
         raise
     except ValueError as error:
@@ -204,6 +189,7 @@ def run(args) -> int:
     spread = "" if record["std_deg"] is None else " ± ({:.2f}°, {:.2f}°)".format(*record["std_deg"])
     summary(args, f"bias (yaw, tilt) = ({record['bias_deg'][0]:+.2f}°, {record['bias_deg'][1]:+.2f}°){spread} "
                   f"({args.method}, {selection.num_selected} of {selection.num_candidates} candidate frames); looking "
-                  f"at '{partner}' in {record['num_looking']} of {record['num_frames']} frames; written to {args.out}"
+                  f"at '{partner}' in {record['num_looking']} of {record['num_frames']} frames; targets in the "
+                  f"{REFERENCE_AXES[track.reference]}; written to {args.out}"
                   + (f" and {args.per_frame}" if args.per_frame else ""))
     return 0

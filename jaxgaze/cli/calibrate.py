@@ -7,8 +7,10 @@ import argparse
 import math
 import os
 import sys
+import warnings
 
-from jaxgaze.cli._common import CommandError, check_output, int_at_least, summary, writing
+from jaxgaze.cli._common import add_output, add_quiet
+from jaxgaze.cli._common import CommandError, check_output, int_at_least, summary, warn, writing
 
 DEFAULT_SAMPLES = 500
 
@@ -21,17 +23,19 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "session in which A looks at B's head-mounted camera. POSES_A and POSES_B are COLMAP "
                     "images.txt files (.txt) or pose CSVs (.csv: frame, qw, qx, qy, qz, cx, cy, cz, with q "
                     "the quaternion of R_camera_from_world in the camera frame +x forward, +y left, +z up); "
-                    "frames are matched by frame id. Writes a JSON with the eye centre (metres) and unit "
+                    "frames are matched by frame id (the summary says how each file's were found). Writes a "
+                    "JSON with the eye centre (metres) and unit "
                     "gaze direction in A's camera frame (+x forward, +y left, +z up) and the bandwidth h "
                     "(radians): wearer, frame, eye_center, direction, bandwidth, alpha, xi, num_points, "
                     "num_inliers, method.",
     )
     parser.add_argument("poses_a", metavar="POSES_A", help="camera poses of the wearer (images.txt or .csv)")
     parser.add_argument("poses_b", metavar="POSES_B", help="camera poses of the partner A looks at")
-    parser.add_argument("--out", required=True, metavar="CALIB.json", help="output JSON (replaced only on success)")
-    parser.add_argument("--posterior", default=None, metavar="POSTERIOR.nc",
+    add_output(parser, "--out", required=True, metavar="CALIB.json", help="output JSON (replaced only on success)")
+    add_output(parser, "--posterior", what="posterior", default=None, metavar="POSTERIOR.nc",
                         help="also sample the Bayesian posterior (NUTS, started at the point estimate), write "
-                             "its arviz InferenceData to this NetCDF file and a summary into the JSON; exit status 1 "
+                             "its arviz InferenceData to this NetCDF file and into the JSON each parameter's mean, sd, "
+                             "90%% HDI, ESS and split r-hat; exit status 1 "
                              "when the sampler did not mix or the eye centre is implausible (files written)")
     parser.add_argument("--samples", type=int_at_least(1), default=DEFAULT_SAMPLES, metavar="N",
                         help=f"NUTS warm-up steps and draws for --posterior (default {DEFAULT_SAMPLES})")
@@ -39,8 +43,70 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--wearer", default=None, metavar="NAME",
                         help="name of the wearer, matched to the 'person' column by 'concurrences "
                              "--calibration' (default: the file name of POSES_A without its extension)")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no summary line on stderr")
+    parser.add_argument("--frame-pattern", default=None, metavar="REGEX",
+                        help="COLMAP files: the frame id is the one group of this regular expression, searched for "
+                             "in each image name, e.g. '_(\\d+)_leftImg8bit' (default: the number in the names, or "
+                             "the one number that changes between them, or IMAGE_ID when they hold no digits)")
+    parser.add_argument("--camera-id", nargs=2, type=_camera_id, default=(None, None), metavar=("A", "B"),
+                        help="keep only the images of COLMAP CAMERA_ID A in POSES_A and B in POSES_B ('any': all), "
+                             "e.g. two wearers in one joint reconstruction")
+    parser.add_argument("--name-prefix", nargs=2, default=("", ""), metavar=("A", "B"),
+                        help="keep only the images whose names start with A in POSES_A and with B in POSES_B "
+                             "('': all)")
+    add_quiet(parser)
     return parser
+
+
+def _camera_id(text: str):
+    """A COLMAP CAMERA_ID (an integer ≥ 1), or None for 'any'."""
+    return None if text == "any" else int_at_least(1)(text)
+
+
+def _read(args):
+    """POSES_A and POSES_B as :class:`~jaxgaze.io.poses.PoseTrack` (images selected, frame ids by the rule)."""
+    from jaxgaze.io.poses import compile_frame_pattern, read_poses
+
+    if args.frame_pattern is not None:
+        try:
+            compile_frame_pattern(args.frame_pattern)
+        except ValueError as error:
+            raise CommandError(f"--frame-pattern: {error}") from None
+    return [read_poses(path, frame_pattern=args.frame_pattern, camera_id=camera, name_prefix=prefix or None)
+            for path, camera, prefix in zip((args.poses_a, args.poses_b), args.camera_id, args.name_prefix)]
+
+
+def _points(args):
+    """A's points of regard looking at B's camera, and how each file's frame ids were found; the readers' and
+    the unit checks' warnings go to stderr once both files were read."""
+    from jaxgaze.io.text import InputFileError
+    from jaxgaze.poses import match_frames, points_of_regard
+
+    caught = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            tracks = _read(args)
+            poses_a, poses_b = tracks[0].poses, tracks[1].poses
+            sources = "; ".join(track.describe() for track in tracks)
+            try:
+                poses_a, poses_b = match_frames(poses_a, poses_b, by="frame")
+            except ValueError:
+                raise CommandError(f"no matching frames: POSES_A and POSES_B share no frame id ({poses_a.num_frames} "
+                                   f"and {poses_b.num_frames} poses; {sources}; other file: {args.poses_b})",
+                                   args.poses_a) from None
+            if poses_a.num_frames < 3:
+                raise CommandError(f"only {poses_a.num_frames} frame(s) in common with {args.poses_b}; calibration "
+                                   "needs at least 3", args.poses_a)
+            points = points_of_regard(poses_a, poses_b)
+    except InputFileError:
+        raise
+    except (ValueError, CommandError) as error:  # both files were read: their warnings first
+        for note in caught:
+            warn(note.message)
+        raise (error if isinstance(error, CommandError) else CommandError(str(error), args.poses_a)) from None
+    for note in caught:
+        warn(note.message)
+    return points, sources
 
 
 def _posterior(args, points, fit, key):
@@ -63,8 +129,6 @@ def run(args) -> int:
 
     from jaxgaze.calibration import MAX_APEX_DISTANCE, calibrate_cone
     from jaxgaze.io.calibration import write_calibration_json
-    from jaxgaze.io.poses import read_poses
-    from jaxgaze.poses import match_frames, points_of_regard
     from jaxgaze.results import RESULTS
 
     wearer = (args.wearer if args.wearer is not None else os.path.splitext(os.path.basename(args.poses_a))[0]).strip()
@@ -75,16 +139,7 @@ def run(args) -> int:
         check_output(args.posterior, "posterior")
         if os.path.abspath(args.posterior) == os.path.abspath(args.out):
             raise CommandError("--posterior and --out must be different files", args.out)
-    poses_a, poses_b = read_poses(args.poses_a), read_poses(args.poses_b)
-    try:
-        poses_a, poses_b = match_frames(poses_a, poses_b, by="frame")
-    except ValueError:
-        raise CommandError(f"no matching frames: POSES_A and POSES_B share no frame id ({poses_a.num_frames} and "
-                           f"{poses_b.num_frames} poses; other file: {args.poses_b})", args.poses_a) from None
-    if poses_a.num_frames < 3:
-        raise CommandError(f"only {poses_a.num_frames} frame(s) in common with {args.poses_b}; calibration needs at "
-                           "least 3", args.poses_a)
-    points = points_of_regard(poses_a, poses_b)
+    points, sources = _points(args)
     key = jax.random.key(args.seed)
     try:
         fit = calibrate_cone(points, key=key, throw=False)
@@ -113,6 +168,6 @@ def run(args) -> int:
     summary(args, f"calibrated '{wearer}' from {record['num_points']} frame(s), {record['num_inliers']} inlier(s): "
                   f"eye centre ({', '.join(f'{x:.3f}' for x in record['eye_center'])}) m, "
                   f"{math.degrees(math.atan2(math.hypot(d[1], d[2]), d[0])):.1f}° off the optical axis, "
-                  f"h = {record['bandwidth']:.4f} rad; written to {args.out}"
+                  f"h = {record['bandwidth']:.4f} rad; {sources}; written to {args.out}"
                   + (f" and {args.posterior}" if args.posterior else ""))
     return 0

@@ -7,6 +7,7 @@ import argparse
 import os
 import time
 
+from jaxgaze.cli._common import add_output, add_quiet
 from jaxgaze.cli._common import CommandError, check_output, int_at_least, positive_float, show_progress, summary
 from jaxgaze.cli._common import writing
 
@@ -22,7 +23,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "--demo-video also renders a session of one more experimenter (not in the training data) as "
                     "a video to try 'jaxgaze attend' on.",
     )
-    parser.add_argument("--out", required=True, metavar="GP.json", help="model file (replaced only on success)")
+    add_output(parser, "--out", what="model", required=True, metavar="GP.json",
+               help="model file (replaced only on success)")
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default 0)")
     parser.add_argument("--method", choices=("gp", "nn"), default="gp",
                         help="gp: the paper's two Gaussian processes; nn: the CogSci neural-network baseline "
@@ -39,14 +41,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="pooling window stored in the model for 'attend' (default 4)")
     parser.add_argument("--max-frames", type=int_at_least(2), default=600, metavar="N",
                         help="thin the training frames evenly to at most N (default 600; a GP costs O(N^3))")
-    parser.add_argument("--demo-video", default=None, metavar="VIDEO",
+    add_output(parser, "--demo-video", what="demo video", default=None, metavar="VIDEO",
                         help="also render a held-out session as a video (.mp4, .avi or .mkv): 640 x 480 (the "
                              "simulator's camera at twice its 320 x 240), 10 lead-in frames of eye contact first")
     parser.add_argument("--demo-frames", type=int_at_least(1), default=100, metavar="N",
                         help="session frames in --demo-video after the lead-in, at most a session's (default 100)")
-    parser.add_argument("-q", "--quiet", action="store_true",
-                        help="no progress bar and no summary line on stderr (the bar is also off when stderr is "
-                             "not a terminal)")
+    add_quiet(parser)
     return parser
 
 
@@ -87,13 +87,14 @@ def run(args) -> int:
         raise CommandError(str(error)) from None
     num_train = args.people * args.sessions
     X, f1, f2 = training_data(sessions, range(num_train), args.max_frames)
+    size = (IMAGE_WIDTH, IMAGE_HEIGHT)  # f2 is a row of the simulator's images
     if args.method == "gp":
-        model = regression.fit_gaze_regression(X, f1, f2, key=key_fit, progress=show_progress(args))
+        model = regression.fit_gaze_regression(X, f1, f2, key=key_fit, progress=show_progress(args), image_size=size)
     else:
-        model = regression.fit_gaze_regression_nn(X, f1, f2, key=key_fit)
+        model = regression.fit_gaze_regression_nn(X, f1, f2, key=key_fit, image_size=size)
     converged = bool(model.converged) if args.method == "gp" else True
     metadata = {
-        "focal_px": float(sessions[0].focal_px), "image_size": [IMAGE_WIDTH, IMAGE_HEIGHT], "fps": float(args.fps),
+        "focal_px": float(sessions[0].focal_px), "fps": float(args.fps),  # + the model's image_size
         "window": int(args.window), "features": ["pitch", "yaw", "roll"],
         "units": "features: head pose (pitch, yaw, roll) in radians relative to the eye-contact (frontal) head "
                  "frame; direction f1: image angle atan2(dy, dx) in radians; depth f2: image row in pixels of "

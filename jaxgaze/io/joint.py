@@ -122,16 +122,14 @@ def read_joint_gaze(paths, *, min_confidence: float = 0.75) -> JointGaze:
 
 
 def read_speech(path, *, file_id: Optional[str] = None) -> SpeechSegments:
-    """Speech segments from an RTTM (``.rttm``) or a segments CSV (``.csv``); another extension is read as
-    RTTM if it has SPEAKER lines, else as CSV. An RTTM of several recordings needs ``file_id``."""
+    """Speech segments from an RTTM (``.rttm``, :func:`~jaxgaze.io.speech.read_rttm`: one of several
+    recordings needs ``file_id``) or a segments CSV (``.csv``); another extension is read as RTTM if it
+    has SPEAKER lines, else as CSV."""
     text = read_text(path, SpeechFileError, "speech")
-    ids = list(dict.fromkeys(f[1] for f in map(str.split, text.splitlines()) if len(f) >= 2 and f[0] == "SPEAKER"))
     ext = os.path.splitext(os.fspath(path))[1].lower()
-    rttm = ext == ".rttm" or (ext != ".csv" and bool(ids))
+    rttm = ext == ".rttm" or (ext != ".csv" and any(line.split()[:1] == ["SPEAKER"] for line in text.splitlines()))
     if file_id is not None and not rttm:
-        raise SpeechFileError("a file id is only for RTTM speech files", path)
-    if rttm and file_id is None and len(ids) > 1:
-        raise SpeechFileError(f"the RTTM holds several recordings (file ids {', '.join(ids)}); choose one", path)
+        raise SpeechFileError("a file id (--speech-file-id) is only for RTTM speech files", path)
     return read_rttm(path, file_id=file_id) if rttm else read_segments_csv(path)
 
 

@@ -15,6 +15,7 @@ File format (``"format": "jaxgaze.gaze_regression"``, ``"version": 1``)::
       "model": "gp" | "nn",
       "dtype": "float64" | "float32",        # the dtype the model was fitted in
       "metadata": {...},                     # free JSON object: focal_px, fps, window, image_size, ...
+                                             # (image_size: the regression's training image size)
       "features": {"mean": [...], "scale": [...]},          # gp: the input standardisation
       "direction": {"scaling": {"mean": m, "scale": s}, "gp": GP},   # f1 (gp)
       "depth":     {"scaling": {"mean": m, "scale": s}, "gp": GP},   # f2 (gp)
@@ -37,6 +38,10 @@ constructed from its natural ``parameters`` and ``fixed`` names, then its
 unconstrained ``raw`` values (when present) are put back exactly. Numbers are
 written with Python's shortest round-trip ``repr``, so float64 values survive
 bit for bit.
+
+The regression's ``image_size`` (the ``(width, height)`` px of its training images) is
+stored as ``metadata.image_size`` (``[width, height]``) and read back from there; a file
+without it loads with ``image_size = None`` (unknown).
 
 A file written in float64 and loaded without ``jax_enable_x64`` gives a float32
 model (and vice versa): JAX's default dtype decides, as for fitting.
@@ -181,7 +186,7 @@ class _Reader:
 
     def kernel(self, data, where: str) -> Kernel:
         kind = self.get(data, "type", where)
-        if kind in _COMBINATIONS:
+        if isinstance(kind, str) and kind in _COMBINATIONS:
             parts = self.get(data, "kernels", where)
             if not isinstance(parts, list) or not parts:
                 self.fail(f"{where}.kernels must be a non-empty list of kernels")
@@ -245,10 +250,12 @@ class _Reader:
         stages = data.get("stages", [])
         if not isinstance(restarts, list) or not isinstance(stages, list):
             self.fail(f"{where}.restart_log_marginal_likelihoods and .stages must be lists")
+        if not all(r is None or (isinstance(r, (int, float)) and not isinstance(r, bool)) for r in restarts):
+            self.fail(f"{where}.restart_log_marginal_likelihoods must hold numbers or null")
         restart_values = np.asarray([np.nan if r is None else r for r in restarts], dtype=np.float64)
         try:
             stage_tuples = tuple((int(n), str(d), int(s)) for n, d, s in stages)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             self.fail(f"{where}.stages must be a list of [points, dtype, steps]")
         Xj, yj = jnp.asarray(X, self.dtype), jnp.asarray(y, self.dtype)
         # The Cholesky factor as fit() leaves it; the jitter as an array, so that one
@@ -381,6 +388,12 @@ def regression_to_json(regression, *, metadata=None) -> dict:
     except (TypeError, ValueError) as error:
         raise ValueError(f"metadata must hold only JSON values (str, finite numbers, bool, None, lists, dicts): "
                          f"{error}") from None
+    size = getattr(regression, "image_size", None)
+    if size is not None:
+        given = metadata.get("image_size")
+        if given is not None and given != list(size):
+            raise ValueError(f"metadata image_size {given!r} differs from the regression's image_size {list(size)}")
+        metadata = {**metadata, "image_size": [int(size[0]), int(size[1])]}
     doc = {"format": FORMAT, "version": VERSION}
     if isinstance(regression, GazeRegression):
         doc.update({
@@ -409,7 +422,8 @@ def save_gaze_regression(path, regression, *, metadata: dict | None = None) -> N
     """Write a fitted :class:`GazeRegression` or :class:`NNGazeRegression` to ``path`` as JSON.
 
     ``metadata`` is any JSON object stored with it (``jaxgaze attend`` reads ``focal_px``,
-    ``fps``, ``window`` and ``image_size`` from it). The file is replaced only once it is
+    ``fps`` and ``window`` from it); the regression's ``image_size`` is stored there as
+    ``image_size`` (a different ``metadata["image_size"]`` is a ``ValueError``). The file is replaced only once it is
     completely written. Raises ``TypeError`` for another model or an unsaveable kernel,
     ``ValueError`` for metadata that is not JSON, ``OSError`` when it cannot be written.
     """
@@ -481,7 +495,8 @@ def metadata_image_size(metadata: dict, path):
 def load_gaze_regression(path, *, with_metadata: bool = False):
     """Read a model written by :func:`save_gaze_regression`.
 
-    Returns the :class:`GazeRegression` (or :class:`NNGazeRegression`), or
+    Returns the :class:`GazeRegression` (or :class:`NNGazeRegression`), with its
+    ``image_size`` from ``metadata.image_size`` (``None`` when absent), or
     ``(regression, metadata)`` with ``with_metadata=True``. The model's dtype is JAX's
     default (float64 under ``jax_enable_x64``). Raises :class:`ModelFileError`.
     """
@@ -495,6 +510,7 @@ def load_gaze_regression(path, *, with_metadata: bool = False):
     metadata = doc.get("metadata", {})
     if not isinstance(metadata, dict):
         r.fail("'metadata' must be a JSON object")
+    image_size = metadata_image_size(metadata, path)
     model = r.get(doc, "model", "")
     if model == "gp":
         features = r.get(doc, "features", "")
@@ -505,12 +521,12 @@ def load_gaze_regression(path, *, with_metadata: bool = False):
             part = r.get(doc, name, "")
             parts.append((r.gp(r.get(part, "gp", name), f"{name}.gp", mean.shape[0]),
                           r.scaling(r.get(part, "scaling", name), f"{name}.scaling", ())))
-        regression = GazeRegression(parts[0][0], parts[1][0], feature_scaling, parts[0][1], parts[1][1])
+        regression = GazeRegression(parts[0][0], parts[1][0], feature_scaling, parts[0][1], parts[1][1], image_size)
     elif model == "nn":
         nets = [r.net(r.get(r.get(doc, name, ""), "net", name), f"{name}.net") for name in ("direction", "depth")]
         if nets[0].params.W1.shape[0] != nets[1].params.W1.shape[0]:
             r.fail("direction.net and depth.net take different numbers of features")
-        regression = NNGazeRegression(*nets)
+        regression = NNGazeRegression(*nets, image_size)
     else:
         r.fail(f"'model' must be \"gp\" or \"nn\", got {json.dumps(model)}")
     return (regression, metadata) if with_metadata else regression

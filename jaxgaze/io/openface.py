@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import warnings
 from typing import NamedTuple, Optional
 
@@ -36,10 +37,12 @@ import numpy as np
 
 from jaxgaze.geometry import direction_to_yaw_pitch, unit
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.text import InputFileError, parse_number, read_csv_table
+from jaxgaze.io.text import InputFileError, first_few, parse_number, read_csv_table
 
 __all__ = [
     "OPENFACE_COLUMNS",
+    "OPENFACE_OUTPUT_FLAGS",
+    "looks_like_openface",
     "R_OPENFACE_MODEL_FROM_HEAD",
     "OpenFaceFileError",
     "OpenFaceTrack",
@@ -63,6 +66,38 @@ OPENFACE_COLUMNS = (
 )
 _BOOKKEEPING = ("frame", "face_id", "timestamp", "confidence", "success")
 _GAZE_POSE = OPENFACE_COLUMNS[4:]
+
+#: OpenFace 2 ``FeatureExtraction``'s output flags and the columns each writes (a run without any of
+#: them writes every column; ``frame, face_id, timestamp, confidence, success`` are always written).
+OPENFACE_OUTPUT_FLAGS = {
+    "-gaze": ("gaze_0_x … gaze_angle_y", r"gaze_(\d_[xyz]|angle_[xy])$|eye_lmk_"),
+    "-pose": ("pose_Tx … pose_Rz", r"pose_[TR][xyz]$"),
+    "-2Dfp": ("x_0 … y_67", r"[xy]_\d+$"),
+    "-3Dfp": ("X_0 … Z_67", r"[XYZ]_\d+$"),
+    "-pdmparams": ("p_scale … p_33", r"p_(scale|r[xyz]|t[xy]|\d+)$"),
+    "-aus": ("AU01_r … AU45_c", r"AU\d+_[rc]$"),
+}
+
+
+def looks_like_openface(names) -> bool:
+    """Whether the column ``names`` of a header are OpenFace's: its bookkeeping columns, or a column
+    one of its output flags writes."""
+    if {"frame", "timestamp", "confidence", "success"} <= set(names):
+        return True
+    return any(re.match(pattern, name) for _, pattern in OPENFACE_OUTPUT_FLAGS.values() for name in names)
+
+
+def _missing_columns_hint(names) -> str:
+    """What to do about missing columns: the FeatureExtraction flag that writes them, for a header that is
+    OpenFace's; else ask whether the file is OpenFace's at all."""
+    flags = [flag for flag in ("-gaze", "-pose")
+             if any(c not in names and re.match(OPENFACE_OUTPUT_FLAGS[flag][1], c) for c in OPENFACE_COLUMNS)]
+    if not (flags and looks_like_openface(names)):
+        return "is this an OpenFace 2 FeatureExtraction CSV?"
+    return ("this OpenFace output was written without them: run FeatureExtraction with "
+            + " and ".join(f"{flag} (it writes {OPENFACE_OUTPUT_FLAGS[flag][0]})" for flag in flags)
+            + ", or with no output flag at all for every column")
+
 
 #: ``v_model = R_OPENFACE_MODEL_FROM_HEAD @ v_head``: our head axes (forward,
 #: left, up) written in OpenFace's head-model axes (x = the person's left,
@@ -168,7 +203,7 @@ def read_openface(path, *, min_confidence: float = 0.75, face_id: Optional[int] 
         raise ValueError(f"read_openface: min_confidence must be finite, got {min_confidence}")
     table = read_csv_table(
         path, OPENFACE_COLUMNS, ("face_id",), error=OpenFaceFileError, what="OpenFace", lower=False,
-        hint="is this an OpenFace 2 FeatureExtraction CSV?",
+        hint=_missing_columns_hint,
         empty="empty file: expected an OpenFace CSV header (frame, face_id, timestamp, ...)",
     )
     columns = [c for c in _BOOKKEEPING if table.has(c)] + list(_GAZE_POSE)
@@ -191,7 +226,8 @@ def read_openface(path, *, min_confidence: float = 0.75, face_id: Optional[int] 
     for c in ("frame", "face_id"):
         if c in col:
             fail_at(
-                col[c] != np.round(col[c]), lambda i, c=c: f"column '{c}' must be an integer, got {float(col[c][i])!r}"
+                (col[c] != np.round(col[c])) | (np.abs(col[c]) >= 2.0 ** 63),
+                lambda i, c=c: f"column '{c}' must be a 64-bit integer, got {float(col[c][i])!r}",
             )
     fail_at(
         (col["success"] != 0) & (col["success"] != 1),
@@ -203,12 +239,12 @@ def read_openface(path, *, min_confidence: float = 0.75, face_id: Optional[int] 
     if face_id is None:
         if len(present) > 1:
             raise OpenFaceFileError(
-                f"several faces (face_id {', '.join(map(str, present))}); pass face_id= to choose one", path
+                f"several faces (face_id {first_few(present, 5)}); pass face_id= to choose one", path
             )
         face_id = present[0]
     elif int(face_id) not in present:
         raise OpenFaceFileError(
-            f"no rows with face_id {face_id} (face_id present: {', '.join(map(str, present))})", path
+            f"no rows with face_id {face_id} (face_id present: {first_few(present, 5)})", path
         )
     mine = faces == int(face_id)
     where, values = where[mine], values[mine]

@@ -31,6 +31,8 @@ __all__ = [
     "read_pose_csv",
     "write_pose_csv",
     "read_poses",
+    "PoseTrack",
+    "compile_frame_pattern",
     "check_quaternion",
     "CAMERA_POSE_COLUMNS",
     "WearerPoses",
@@ -80,30 +82,111 @@ def check_quaternion(q, path, line: int) -> None:
         )
 
 
-def _check_duplicates(frames: list[int], lines: list[int], path) -> None:
+def _check_duplicates(frames: list[int], lines: list[int], path, hint: str = "") -> None:
     first: dict[int, int] = {}
     for frame, line in zip(frames, lines):
         seen = first.setdefault(frame, line)
         if seen != line:
-            raise PoseFileError(f"duplicate frame {frame} (first on line {seen})", path, line)
+            raise PoseFileError(f"duplicate frame {frame} (first on line {seen}){hint}", path, line)
 
 
-_TRAILING_DIGITS = re.compile(r"(\d+)$")
+_DIGITS = re.compile(r"\d+")
+_LARGEST_FRAME = np.iinfo(np.int64).max
+_SELECT_HINT = "select one wearer's images by camera id or name prefix"
 
 
-def _frame_from_name(name: str) -> Optional[int]:
-    """Trailing digits of the file name's stem: ``dir/frame_000123.jpg`` → 123."""
-    base = name.replace("\\", "/").rsplit("/", 1)[-1]
-    stem = base.rsplit(".", 1)[0] if "." in base else base
-    match = _TRAILING_DIGITS.search(stem)
-    return int(match.group(1)) if match else None
+def compile_frame_pattern(pattern: str) -> re.Pattern:
+    """A frame pattern: a regular expression with exactly one group, the frame id's digits,
+    searched for in each image name (e.g. ``r"_(\\d+)_leftImg8bit"``); ``ValueError`` otherwise."""
+    try:
+        compiled = re.compile(pattern)
+    except re.error as error:
+        raise ValueError(f"frame pattern '{pattern}' is not a regular expression: {error}") from None
+    if compiled.groups != 1:
+        raise ValueError(f"frame pattern '{pattern}' must have exactly one group (the frame id's digits), "
+                         f"it has {compiled.groups}")
+    return compiled
+
+
+def _stem(name: str) -> str:
+    """The image name without its extension (directories kept)."""
+    head, _, base = name.replace("\\", "/").rpartition("/")
+    return head + "/" * bool(head) + (base.rsplit(".", 1)[0] if "." in base else base)
+
+
+def _frame_id(digits: str, name: str, path, line: int) -> int:
+    value = int(digits)
+    if value > _LARGEST_FRAME:
+        raise PoseFileError(f"frame id {digits} in image name {name!r} is too large", path, line)
+    return value
+
+
+def _frame_ids(names, image_ids, lines, path, pattern) -> tuple[list[int], str]:
+    """Frame ids of COLMAP images and the rule that gave them (see :func:`read_colmap_images`)."""
+    if pattern is not None:
+        compiled = compile_frame_pattern(pattern)
+        frames = []
+        for name, line in zip(names, lines):
+            match = compiled.search(name)
+            if match is None:
+                raise PoseFileError(f"image name {name!r} does not match the frame pattern '{pattern}'", path, line)
+            if not (match.group(1) or "").isdecimal():
+                raise PoseFileError(f"the frame pattern '{pattern}' picks {match.group(1)!r} out of image name "
+                                    f"{name!r}, not a frame number", path, line)
+            frames.append(_frame_id(match.group(1), name, path, line))
+        return frames, f"the image names by the pattern '{pattern}'"
+    runs = [_DIGITS.findall(_stem(name)) for name in names]
+    counts = sorted({len(r) for r in runs})
+    if counts == [0]:
+        for image_id, line in zip(image_ids, lines):
+            if abs(image_id) > _LARGEST_FRAME:
+                raise PoseFileError(f"IMAGE_ID {image_id} is too large for a frame id", path, line)
+        return list(image_ids), "IMAGE_ID (the image names hold no digits)"
+    ambiguous = f"give a frame pattern (a regular expression with one group, e.g. '_(\\d+)\\.png$'), or {_SELECT_HINT}"
+    if len(counts) > 1:
+        k = next(i for i, r in enumerate(runs) if len(r) != len(runs[0]))
+        raise PoseFileError(f"frame ids are ambiguous: image names hold different numbers of digit runs "
+                            f"({names[0]!r} has {len(runs[0])}, {names[k]!r} has {len(runs[k])}); {ambiguous}",
+                            path, lines[k])
+    size = counts[0]
+    columns = [[int(r[k]) for r in runs] for k in range(size)]
+    varying = [0] if size == 1 else [k for k in range(size) if len(set(columns[k])) > 1]
+    if len({tuple(columns[k]) for k in varying}) != 1:  # none of several runs changes, or several change differently
+        what = "change from image to image" if varying else "could each be the frame id"
+        raise PoseFileError(f"frame ids are ambiguous: the image names hold {size} numbers that {what} "
+                            f"(e.g. {names[0]!r}: {', '.join(runs[0])}); {ambiguous}", path, lines[0])
+    k = varying[0]
+    frames = [_frame_id(r[k], name, path, line) for r, name, line in zip(runs, names, lines)]
+    which = "the number in the image names" if size == 1 else "the one number that changes in the image names"
+    return frames, f"{which} (e.g. {names[0]!r} → {frames[0]})"
+
+
+def _select(images: list, camera_id, name_prefix, path) -> tuple[list, str]:
+    """The images of one camera id and/or name prefix, and a phrase saying which ('' for all)."""
+    chosen, said = images, []
+    if camera_id is not None:
+        chosen = [image for image in chosen if image[2] == camera_id]
+        if not chosen:
+            known = sorted({image[2] for image in images})
+            raise PoseFileError(f"no image has CAMERA_ID {camera_id} (the file's camera ids: "
+                                f"{', '.join(str(c) for c in known[:10])}{', …' if len(known) > 10 else ''})", path)
+        said.append(f"CAMERA_ID {camera_id}")
+    if name_prefix is not None:
+        kept = [image for image in chosen if image[3].startswith(name_prefix)]
+        if not kept:
+            among = f" among those of CAMERA_ID {camera_id}" if camera_id is not None else ""
+            raise PoseFileError(f"no image name starts with {name_prefix!r}{among} (e.g. {chosen[0][3]!r})", path)
+        chosen = kept
+        said.append(f"names starting with {name_prefix!r}")
+    return chosen, (f"{len(chosen)} of {len(images)} images, {' and '.join(said)}" if said else "")
 
 
 # ---------------------------------------------------------------------------
 # COLMAP
 
 
-def read_colmap_images(path) -> CameraPoses:
+def read_colmap_images(path, *, frame_pattern: Optional[str] = None, camera_id: Optional[int] = None,
+                       name_prefix: Optional[str] = None) -> CameraPoses:
     """Read COLMAP's text ``images.txt`` into :class:`CameraPoses` (our convention).
 
     Format: lines starting with ``#`` are comments. Each image takes two lines:
@@ -112,17 +195,39 @@ def read_colmap_images(path) -> CameraPoses:
     camera in the OpenCV camera frame, ``x_cam = R(q) x_world + t``, so the
     centre is ``C = −R(q)ᵀ t`` and ``R_camera_from_world = R_OURS_FROM_OPENCV @ R(q)``.
 
-    The frame index is the trailing digits of NAME's stem (``frame_000123.jpg``
-    → 123), or IMAGE_ID if the stem does not end in digits. Poses are sorted by
-    frame; ``timestamps`` is ``None``.
+    ``camera_id`` and ``name_prefix`` keep one wearer's images of a joint
+    reconstruction: those of that CAMERA_ID, and those whose NAME starts with the prefix.
+
+    Frame ids come from the kept images' names (directories included, extension dropped):
+
+    * with ``frame_pattern``, a regular expression with one group
+      (:func:`compile_frame_pattern`) searched for in each NAME, e.g. ``r"_(\\d+)_leftImg8bit"``;
+    * otherwise from the runs of digits in the names: with one run per name, that number
+      (``frame_000123.jpg`` → 123); with several, the one run that changes from image to
+      image (``aachen_000000_000019_leftImg8bit.png`` → 19: the ``000000`` and the ``8`` of
+      ``leftImg8bit`` are the same in every name);
+    * IMAGE_ID when no name holds a digit.
+
+    Anything else is ambiguous, and an error rather than a guess: names with different
+    numbers of digit runs, or several runs that change (two wearers' images mixed, say).
+    Poses are sorted by frame; ``timestamps`` is ``None``. :func:`read_poses` also says
+    which rule gave the frame ids.
 
     Raises :class:`PoseFileError` (a ``ValueError``) naming file and line for a
     missing or non-numeric field, a NaN/inf, a non-unit quaternion
-    (``|‖q‖ − 1| > 1e-3``), a missing POINTS2D line, a duplicate frame, or a
-    file with no images.
+    (``|‖q‖ − 1| > 1e-3``), a missing POINTS2D line, ambiguous frame ids, a name
+    the pattern does not match, a duplicate frame, a file with no images, or no
+    image selected; ``ValueError`` for a pattern without exactly one group.
     """
+    return _read_colmap(path, frame_pattern, camera_id, name_prefix)[0]
+
+
+def _read_colmap(path, frame_pattern, camera_id, name_prefix) -> tuple[CameraPoses, str, str]:
+    """:func:`read_colmap_images`, with the rule that gave the frame ids and the phrase of the selection."""
+    if frame_pattern is not None:
+        compile_frame_pattern(frame_pattern)
     lines = _read_text(path)
-    quats, ts, frames, where = [], [], [], []
+    images = []  # (q, t, CAMERA_ID, NAME, line, IMAGE_ID)
     i = 0
     while i < len(lines):
         raw = lines[i]
@@ -141,7 +246,7 @@ def read_colmap_images(path) -> CameraPoses:
         image_id = _integer(fields[0], "IMAGE_ID", path, number)
         q = [_number(fields[1 + k], name, path, number) for k, name in enumerate(("QW", "QX", "QY", "QZ"))]
         t = [_number(fields[5 + k], name, path, number) for k, name in enumerate(("TX", "TY", "TZ"))]
-        _integer(fields[8], "CAMERA_ID", path, number)
+        camera = _integer(fields[8], "CAMERA_ID", path, number)
         name = " ".join(fields[9:])
         check_quaternion(q, path, number)
         # The next line, whatever it holds, is this image's POINTS2D line (as in COLMAP).
@@ -155,21 +260,21 @@ def read_colmap_images(path) -> CameraPoses:
                     i + 1,
                 )
             i += 1
-        frame = _frame_from_name(name)
-        quats.append(q)
-        ts.append(t)
-        frames.append(image_id if frame is None else frame)
-        where.append(number)
-    if not frames:
+        images.append((q, t, camera, name, number, image_id))
+    if not images:
         raise PoseFileError("no images: expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME' lines", path)
-    _check_duplicates(frames, where, path)
-    q = np.asarray(quats, dtype=np.float64)
+    images, selection = _select(images, camera_id, name_prefix, path)
+    where = [image[4] for image in images]
+    frames, rule = _frame_ids([image[3] for image in images], [image[5] for image in images], where, path,
+                              frame_pattern)
+    _check_duplicates(frames, where, path, f" (several wearers' images? {_SELECT_HINT})")
+    q = np.asarray([image[0] for image in images], dtype=np.float64)
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
     R_cv = quaternions_to_matrices(q)
-    t = np.asarray(ts, dtype=np.float64)
+    t = np.asarray([image[1] for image in images], dtype=np.float64)
     centers = -np.einsum("tji,tj->ti", R_cv, t)
     R = np.einsum("ij,tjk->tik", R_OURS_FROM_OPENCV, R_cv)
-    return camera_poses(R, centers, frames)
+    return camera_poses(R, centers, frames), rule, selection
 
 
 def write_colmap_images(path, poses: CameraPoses, *, camera_id: int = 1) -> None:
@@ -257,14 +362,46 @@ def write_pose_csv(path, poses: CameraPoses) -> None:
             writer.writerow(row)
 
 
-def read_poses(path) -> CameraPoses:
-    """One wearer's camera poses from a COLMAP ``images.txt`` (``.txt``, :func:`read_colmap_images`)
-    or a pose CSV (``.csv``, :func:`read_pose_csv`); :class:`PoseFileError` for another extension."""
-    ext = os.path.splitext(os.fspath(path))[1].lower()
+class PoseTrack(NamedTuple):
+    """One wearer's camera poses read by :func:`read_poses`, and where they came from.
+
+    ``frame_ids_from`` says which rule gave the frame ids (e.g. ``"its 'frame' column"``,
+    ``"IMAGE_ID (the image names hold no digits)"``); ``selection`` which images of a
+    COLMAP file were kept (``""``: all of them).
+    """
+
+    poses: CameraPoses
+    path: str
+    frame_ids_from: str
+    selection: str = ""
+
+    def describe(self) -> str:
+        """One phrase: the file's name, the images kept, the rule of the frame ids."""
+        kept = f" ({self.selection})" if self.selection else ""
+        return f"{os.path.basename(self.path)}{kept}: frame ids from {self.frame_ids_from}"
+
+
+def read_poses(path, *, frame_pattern: Optional[str] = None, camera_id: Optional[int] = None,
+               name_prefix: Optional[str] = None) -> PoseTrack:
+    """One wearer's camera poses from a COLMAP ``images.txt`` (``.txt``, :func:`read_colmap_images`,
+    with its keywords) or a pose CSV (``.csv``, :func:`read_pose_csv`, frame ids from its ``frame``
+    column; ``frame_pattern`` does not apply), as a :class:`PoseTrack` that says how frames were identified.
+
+    :class:`PoseFileError` for another extension, or ``camera_id``/``name_prefix`` with a pose CSV
+    (it holds one wearer).
+    """
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
     if ext not in (".txt", ".csv"):
         raise PoseFileError(f"unknown pose file type '{ext}': expected a COLMAP images.txt (.txt) or a pose CSV "
                             "(.csv)", path)
-    return read_colmap_images(path) if ext == ".txt" else read_pose_csv(path)
+    if ext == ".txt":
+        poses, rule, selection = _read_colmap(path, frame_pattern, camera_id, name_prefix)
+        return PoseTrack(poses, path, rule, selection)
+    if camera_id is not None or name_prefix is not None:
+        raise PoseFileError("a camera id or name prefix selects images of a COLMAP images.txt; a pose CSV holds one "
+                            "wearer's poses", path)
+    return PoseTrack(read_pose_csv(path), path, "its 'frame' column")
 
 
 # ---------------------------------------------------------------------------

@@ -15,7 +15,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from jaxgaze.io.text import InputFileError, atomic_path, format_float, read_csv_table
-from jaxgaze.rays import GazeRays
+from jaxgaze.rays import GazeRays, check_bandwidth
 
 __all__ = ["CSV_COLUMNS", "DEFAULT_BANDWIDTH", "RayRecording", "read_rays_csv", "write_rays_csv", "stack_rays"]
 
@@ -72,7 +72,8 @@ def read_rays_csv(path, default_bandwidth: float = DEFAULT_BANDWIDTH) -> RayReco
     skipped. Rays without a ``bandwidth`` column get ``default_bandwidth``. Raises
     :class:`InputFileError` naming the file and line for a header problem, an empty or
     non-numeric cell, NaN/inf or a value beyond float32, a non-integer frame, a
-    non-positive bandwidth, a zero direction or a duplicate (frame, person).
+    non-positive bandwidth or one of a radian or more (degrees?, :func:`~jaxgaze.rays.check_bandwidth`),
+    a zero direction or a duplicate (frame, person).
     """
     table = read_csv_table(path, CSV_COLUMNS, ("bandwidth",), empty="input is empty: expected a header row with "
                            "columns " + ", ".join(CSV_COLUMNS), empty_at_end=True)
@@ -88,6 +89,10 @@ def read_rays_csv(path, default_bandwidth: float = DEFAULT_BANDWIDTH) -> RayReco
             h = _float32(row, "bandwidth")
             if h <= 0:
                 raise row.error(f"bandwidth must be positive (radians), got {row.cell('bandwidth')}")
+            try:
+                check_bandwidth(h)
+            except ValueError as error:
+                raise row.error(str(error)) from None
         if math.sqrt(sum(x * x for x in direction)) < _MIN_DIRECTION_NORM:
             raise row.error("direction (dx, dy, dz) has zero length")
         first = seen.setdefault((frame, person), row.line)

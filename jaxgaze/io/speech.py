@@ -5,6 +5,7 @@ File errors raise :class:`SpeechFileError` whose message starts with ``path, lin
 
 from __future__ import annotations
 
+import math
 import os
 import warnings
 from typing import Optional
@@ -12,7 +13,7 @@ from typing import Optional
 import numpy as np
 
 from jaxgaze.bias.speech import TIME_DECIMALS, SpeechSegments
-from jaxgaze.io.text import InputFileError, parse_number, read_csv_table, read_lines
+from jaxgaze.io.text import InputFileError, first_few, parse_number, read_csv_table, read_lines
 
 __all__ = ["SpeechFileError", "read_rttm", "read_segments_csv"]
 
@@ -22,7 +23,8 @@ class SpeechFileError(InputFileError):
 
 
 def _segments(path, starts, ends, speakers, lines) -> SpeechSegments:
-    """Merge overlapping segments of the same speaker (one warning), then sort."""
+    """Merge overlapping segments of the same speaker (one short warning: the count and the first
+    few cases), then sort."""
     merged, notes = [], []
     for name in sorted(set(speakers)):
         mine = sorted((s, e, n) for s, e, sp, n in zip(starts, ends, speakers, lines) if sp == name)
@@ -38,7 +40,7 @@ def _segments(path, starts, ends, speakers, lines) -> SpeechSegments:
     if notes:
         warnings.warn(
             f"{os.fspath(path)}: merged {len(notes)} overlapping segment(s) of the same speaker: "
-            + "; ".join(notes),
+            + first_few(notes, sep="; "),
             stacklevel=3,
         )
     merged.sort()
@@ -55,13 +57,16 @@ def read_rttm(path, *, file_id: Optional[str] = None) -> SpeechSegments:
     Each ``SPEAKER <file> <channel> <onset> <duration> <NA> <NA> <speaker> <NA> <NA>``
     line (whitespace-separated, seconds) gives the segment
     ``[onset, onset + duration)`` (rounded to 1 ns). Other line types
-    (``SPKR-INFO``, ``LEXEME``, ...) and ``;;`` comments are ignored. Segments of
-    every file id are kept unless ``file_id`` selects one. Overlapping segments of
-    one speaker are merged, with a warning.
+    (``SPKR-INFO``, ``LEXEME``, ...) and ``;;`` comments are ignored. A file of
+    several recordings (file ids, the 2nd field: AMI's or pyannote's RTTMs of a whole
+    set) needs ``file_id`` to choose one: their times are on different clocks and
+    their speaker names may repeat. Overlapping segments of one speaker are merged,
+    with a warning.
 
     Raises :class:`SpeechFileError` (``path, line N:``) for an empty file, a
     SPEAKER line with fewer than 8 fields, a non-numeric or non-finite onset or
-    duration, a negative duration, no SPEAKER lines, or no lines for ``file_id``.
+    duration, a negative duration, no SPEAKER lines, several recordings without
+    ``file_id``, or no lines for ``file_id``.
     """
     lines = read_lines(path, SpeechFileError, "speech")
     if not any(ln.strip() for ln in lines):
@@ -71,7 +76,7 @@ def read_rttm(path, *, file_id: Optional[str] = None) -> SpeechSegments:
             path,
             1,
         )
-    starts, ends, names, where, files = [], [], [], [], []
+    starts, ends, names, where, files, first_line = [], [], [], [], [], {}
     for number, raw in enumerate(lines, start=1):
         fields = raw.split()
         if not fields or fields[0].startswith(";;") or fields[0] != "SPEAKER":
@@ -84,22 +89,29 @@ def read_rttm(path, *, file_id: Optional[str] = None) -> SpeechSegments:
                 number,
             )
         files.append(fields[1])
+        first_line.setdefault(fields[1], number)
         if file_id is not None and fields[1] != file_id:
             continue
         onset = parse_number(fields[3], "onset", path, number, SpeechFileError)
         duration = parse_number(fields[4], "duration", path, number, SpeechFileError)
         if duration < 0:
             raise SpeechFileError(f"negative duration {fields[4]}", path, number)
+        if not math.isfinite(onset + duration):
+            raise SpeechFileError(f"onset + duration is not finite: {fields[3]} + {fields[4]}", path, number)
         starts.append(onset)
         ends.append(round(onset + duration, TIME_DECIMALS))
         names.append(fields[7])
         where.append(number)
     if not files:
         raise SpeechFileError("no SPEAKER lines", path)
+    ids = list(dict.fromkeys(files))
+    if file_id is None and len(ids) > 1:
+        raise SpeechFileError(f"a second recording '{ids[1]}' starts here: the RTTM holds {len(ids)} recordings "
+                              f"(file ids {first_few(ids, 5)}) on separate clocks; choose one (file_id, --speech-file-id)", path,
+                              first_line[ids[1]])
     if not starts:
-        raise SpeechFileError(
-            f"no SPEAKER lines for file '{file_id}' (files present: {', '.join(sorted(set(files)))})", path
-        )
+        raise SpeechFileError(f"no SPEAKER lines for file '{file_id}' (files present: {first_few(sorted(ids), 5)})",
+                              path)
     return _segments(path, starts, ends, names, where)
 
 

@@ -14,6 +14,7 @@ import csv
 import math
 import os
 import tempfile
+import warnings
 from typing import NamedTuple, Optional
 
 __all__ = [
@@ -27,6 +28,7 @@ __all__ = [
     "parse_number",
     "format_float",
     "header_problem",
+    "first_few",
 ]
 
 
@@ -136,6 +138,14 @@ def header_problem(names: list[str], required, *, hint: str, watched=None) -> Op
     return None
 
 
+def first_few(items, limit: int = 3, sep: str = ", ") -> str:
+    """The first ``limit`` of ``items`` joined by ``sep``, then "… and N more": a list of any
+    length kept short enough for one line of a message or warning."""
+    items = [str(item) for item in items]
+    shown = sep.join(items[:limit])
+    return shown if len(items) <= limit else f"{shown} … and {len(items) - limit} more"
+
+
 # ---------------------------------------------------------------------------
 # CSV tables
 
@@ -172,10 +182,12 @@ class CsvRow:
                             finite=finite)
 
     def integer(self, column: str) -> int:
-        """``column`` as an integer (``3`` or ``3.0``; not ``3.5``)."""
+        """``column`` as an integer (``3`` or ``3.0``; not ``3.5``, nor beyond 64 bits)."""
         value = self.number(column)
         if not value.is_integer():
             raise self.error(f"column '{column}' must be an integer, got {self.cell(column)!r}")
+        if abs(value) >= 2.0 ** 63:
+            raise self.error(f"column '{column}' is out of range for a 64-bit integer: {self.cell(column)!r}")
         return int(value)
 
 
@@ -205,29 +217,32 @@ class CsvTable(NamedTuple):
 
 
 def read_csv_table(path, required, optional=(), *, error: type[InputFileError] = InputFileError,
-                   what: str = "input", hint: Optional[str] = None, empty: Optional[str] = None,
+                   what: str = "input", hint=None, empty: Optional[str] = None,
                    comments: bool = False, lower: bool = True, empty_at_end: bool = False) -> CsvTable:
     """Read a CSV file with a header row into a :class:`CsvTable` of text cells.
 
     The first non-blank line is the header (names stripped, lower-cased unless
     ``lower=False``); it must name every ``required`` column, and no column of
-    ``required`` or ``optional`` twice (:func:`header_problem`; ``hint`` says what is
-    needed). Blank lines, and with ``comments=True`` lines starting with ``#``, are
-    skipped. Every data row must have as many fields as the header, and there must be
-    at least one. Raises ``error`` (``path, line N: what``) for a missing or unreadable
-    file (named by ``what``), bad bytes, an empty file (message ``empty``, at line 1, or
-    at the file's last line with ``empty_at_end=True``), malformed CSV, a header problem,
-    a ragged row, or no data rows.
+    ``required`` or ``optional`` twice (:func:`header_problem`; ``hint``, a text or a
+    function of the header's names, says what is needed). Blank lines, and with
+    ``comments=True`` lines starting with ``#``, are skipped. Every data row must have
+    as many fields as the header, and there must be at least one; the one exception is
+    a recording cut off mid-write: a last line with too few fields and no newline at the
+    end of the file is dropped, with a warning naming its line. Raises ``error``
+    (``path, line N: what``) for a missing or unreadable file (named by ``what``), bad
+    bytes, an empty file (message ``empty``, at line 1, or at the file's last line with
+    ``empty_at_end=True``), malformed CSV, a header problem, a ragged row, or no data rows.
     """
     path = os.fspath(path)
     required, optional = tuple(required), tuple(optional)
-    lines = read_lines(path, error, what)
+    text = read_text(path, error, what)
+    lines = text.splitlines()
     numbers, content = [], []
-    for n, text in enumerate(lines, start=1):
-        stripped = text.strip()
+    for n, line in enumerate(lines, start=1):
+        stripped = line.strip()
         if stripped and not (comments and stripped.startswith("#")):
             numbers.append(n)
-            content.append(text)
+            content.append(line)
     if not content:
         if empty is None:
             empty = "empty file: expected a header row with columns " + ", ".join(required)
@@ -245,16 +260,27 @@ def read_csv_table(path, required, optional=(), *, error: type[InputFileError] =
     names = tuple(cell.strip().lower() if lower else cell.strip() for cell in header)
     if hint is None:
         hint = "need " + ", ".join(required) + (", optionally " + ", ".join(optional) if optional else "")
+    elif callable(hint):
+        hint = hint(names)
     problem = header_problem(list(names), required, hint=hint, watched=[n for n in names if n in required + optional])
     if problem:
         raise error(problem, path, header_line)
     index = {c: names.index(c) for c in required + optional if c in names}
+    cut = None
+    if len(records) > 1 and len(records[-1][1]) < len(header) and records[-1][0] == len(lines) \
+            and not text.endswith(("\n", "\r")):
+        # A recording cut off mid-write: the last line is short and has no newline.
+        line, cells = records.pop()
+        cut = f"line {line} is cut off ({len(cells)} of {len(header)} fields and no newline at the end of the file)"
     if len(records) == 1:
-        raise error("no data rows after the header", path, header_line)
+        raise error("no data rows after the header" + (f": {cut}" if cut else ""), path, header_line)
     table = CsvTable(path, header_line, names, index, (), error)
     rows = []
     for line, cells in records[1:]:
         if len(cells) != len(header):
             raise error(f"expected {len(header)} fields as in the header, got {len(cells)}", path, line)
         rows.append(CsvRow(table, line, cells))
+    if cut:
+        warnings.warn(f"{path}: dropped the last row: {cut}; read the {len(rows)} complete row(s) before it",
+                      stacklevel=3)
     return table._replace(rows=tuple(rows))

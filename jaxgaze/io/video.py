@@ -9,7 +9,14 @@
 * :func:`write_video` writes frames atomically (a temporary file next to the
   target, renamed on success): ``.mp4`` with the ``mp4v`` codec, ``.avi`` with
   ``MJPG`` (both lossy: a few grey levels off), ``.mkv`` with ``FFV1``
-  (lossless).
+  (lossless); :func:`write_frames` writes a video or, for a path without an
+  extension, a folder of PNG images (atomically too), and
+  :func:`check_frames_output` checks such a path before any work.
+
+FFmpeg's own log lines (e.g. ``moov atom not found`` for a corrupt ``.mp4``) are
+silenced: importing this module sets ``OPENCV_FFMPEG_LOGLEVEL=-8`` (quiet) unless it is
+already set, since OpenCV reads it when it first uses FFmpeg. A file that cannot be
+read raises :class:`VideoFileError` instead.
 
 Errors in the input are :class:`VideoFileError` (a ``ValueError`` whose message
 starts with ``path:``), naming the file: a missing path, a file OpenCV cannot
@@ -22,9 +29,13 @@ from __future__ import annotations
 import math
 import os
 import re
+import shutil
+import tempfile
 from collections.abc import Iterator
 
-import cv2
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # before OpenCV first opens FFmpeg (see the docstring)
+
+import cv2  # noqa: E402
 import numpy as np
 
 from jaxgaze.io.text import InputFileError, atomic_path
@@ -35,10 +46,12 @@ __all__ = [
     "VIDEO_CODECS",
     "VideoFileError",
     "VideoFrames",
+    "check_frames_output",
     "frame_count",
     "iter_frames",
     "read_frames",
     "video_fps",
+    "write_frames",
     "write_video",
 ]
 
@@ -248,4 +261,62 @@ def write_video(path, frames, fps: float) -> int:
                 writer.release()
         if count == 0:
             raise ValueError(f"cannot write video {path}: no frames")
+    return count
+
+
+def check_frames_output(path) -> None:
+    """Check, before any work, that :func:`write_frames` can write ``path``: a video extension
+    (:data:`VIDEO_CODECS`) or none (a folder of PNG images that does not exist or is empty), in an
+    existing directory. Raises ``ValueError`` naming what is wrong."""
+    path = os.fspath(path)
+    ext = os.path.splitext(path.rstrip(os.sep))[1].lower()
+    if ext and ext not in VIDEO_CODECS:
+        raise ValueError(f"cannot write frames to {path}: {ext!r} is not a video extension ("
+                         + ", ".join(VIDEO_CODECS) + "), and a folder of PNG images has no extension")
+    directory = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(directory):
+        raise ValueError(f"cannot write frames to {path}: directory {directory} does not exist")
+    if not ext and os.path.exists(path) and not (os.path.isdir(path) and not os.listdir(path)):
+        raise ValueError(f"cannot write frames to {path}: it exists and is not an empty folder")
+
+
+def write_frames(path, frames, fps: float) -> int:
+    """Write ``frames`` (as :func:`write_video`) to a video file, or to a folder of PNG images
+    ``frame_000000.png``, ``frame_000001.png``, ... for a path without an extension; returns
+    the number written. ``fps`` is the video's frame rate (unused for a folder).
+
+    Atomic: the frames go to a temporary file or folder next to ``path``, renamed onto it
+    only when all are written (a folder replaces only an empty folder). Raises as
+    :func:`check_frames_output` and :func:`write_video`.
+    """
+    check_frames_output(path)
+    path = os.fspath(path).rstrip(os.sep) or os.sep
+    if os.path.splitext(path)[1]:
+        return write_video(path, frames, fps)
+    target = os.path.abspath(path)
+    tmp = tempfile.mkdtemp(dir=os.path.dirname(target), prefix=f".{os.path.basename(target)}.", suffix=".tmp")
+    try:
+        count, size = 0, None
+        for index, frame in enumerate(frames):
+            image = check_image(frame, f"frames[{index}]")
+            if image.dtype != np.uint8:
+                image = np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
+            if size is None:
+                size = image.shape[:2]
+            elif image.shape[:2] != size:
+                raise ValueError(f"frames[{index}] is {image.shape[1]}x{image.shape[0]} px but frames[0] is "
+                                 f"{size[1]}x{size[0]} px")
+            bgr = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+            file = os.path.join(tmp, f"frame_{index:06d}.png")
+            if not cv2.imwrite(file, bgr):
+                raise OSError(f"cannot write {file}")
+            count += 1
+        if count == 0:
+            raise ValueError(f"cannot write frames to {path}: no frames")
+        if os.path.isdir(target):
+            os.rmdir(target)  # empty (checked above); os.replace needs it gone on some systems
+        os.replace(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
     return count

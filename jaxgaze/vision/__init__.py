@@ -27,6 +27,7 @@ Where each equation and section lives:
 | T-CYB Sec. VI: saliency, Gaussian mask, winner-take-all with inhibition of return | ``saliency``, ``gaussian_mask``, ``winner_take_all``, ``salient_region`` | ``vision/saliency_maps.py`` |
 | T-CYB Sec. VI–VII: the attended location of one window | ``attend_window`` | ``vision/attend.py`` |
 | T-CYB Sec. IV–VI: video → tracking → regression → pooling → attention | ``attend_frames`` | ``vision/attend.py`` |
+| the result drawn on the frames (attended point, region, head centre, target) | ``draw_attention``, ``attention_overlay`` | ``vision/attend.py`` |
 """
 
 from jaxgaze.vision.attend import (
@@ -34,6 +35,8 @@ from jaxgaze.vision.attend import (
     AttentionWindows,
     attend_frames,
     attend_window,
+    attention_overlay,
+    draw_attention,
     target_point_covariance,
 )
 from jaxgaze.vision.faces import EyeBox, FaceBox, detect_eyes, detect_faces
@@ -54,6 +57,8 @@ __all__ = [
     "AttentionWindows",
     "attend_frames",
     "attend_window",
+    "attention_overlay",
+    "draw_attention",
     "target_point_covariance",
     "EyeBox",
     "FaceBox",

@@ -31,8 +31,10 @@ region growing. Here the choice is a **posterior over candidate locations**:
   :func:`~jaxgaze.vision.saliency_maps.salient_region` on the masked map ``S · mask``; its object is the box it is in.
 
 Functions: :func:`attend_window` (one window) and :func:`attend_frames` (a video:
-head tracking → regression → pooling → attention). The paper's Tables I–II on
-simulated sessions are in :mod:`jaxgaze.papers.yucel2013_attention`.
+head tracking → regression → pooling → attention; the regression's ``f2`` rows are
+scaled to the frames' size); :func:`draw_attention` and :func:`attention_overlay` draw
+the result on the frames. The paper's Tables I–II on simulated sessions are in
+:mod:`jaxgaze.papers.yucel2013_attention`.
 
 Coordinates are image coordinates (``docs/conventions.md``): x right, y down, origin at
 the top-left pixel's outer corner, so pixel ``(row i, col j)`` is centred at
@@ -42,12 +44,15 @@ the top-left pixel's outer corner, so pixel ``(row i, col j)`` is centred at
 from __future__ import annotations
 
 import math
+import warnings
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 
 from jaxgaze.geometry import head_pose_to_rotation
 from jaxgaze.headpose import target as tg
+from jaxgaze.headpose.regression import RescaledRegression, training_image_scale
 from jaxgaze.vision.head_model import CylinderHead
 from jaxgaze.vision.images import check_image, iterate_frames
 from jaxgaze.vision.saliency_maps import SALIENCY_METHODS, gaussian_mask, salient_region, saliency, winner_take_all
@@ -57,6 +62,9 @@ __all__ = [
     "AttentionWindows",
     "attend_frames",
     "attend_window",
+    "attention_overlay",
+    "draw_attention",
+    "OVERLAY_COLOURS",
     "target_points_and_covariances",
     "NO_LOCATION",
     "target_point_covariance",
@@ -313,6 +321,9 @@ class AttentionWindows(NamedTuple):
         reason: ``(W,)`` why a window is not valid: ``""``, ``"tracker lost"`` (pose,
             direction, depth, target and attention NaN) or ``"no location stands out"``
             (the regression fields are kept; attention NaN). Probability 0 in both.
+        window: frames per window.
+        image_scale: the factor applied to the regression's ``f2`` rows (and variances):
+            frame height / training image height (1 when equal or unknown).
     """
 
     start_frame: np.ndarray
@@ -326,6 +337,8 @@ class AttentionWindows(NamedTuple):
     valid: np.ndarray
     head_xy: np.ndarray
     reason: tuple
+    window: int
+    image_scale: float
 
 
 def _head_centre_image(track, focal: float, size, head: CylinderHead) -> np.ndarray:
@@ -337,6 +350,24 @@ def _head_centre_image(track, focal: float, size, head: CylinderHead) -> np.ndar
     R = track.R_optical_from_frontal @ np.asarray(R_frontal, np.float64)
     front = track.translation + R[:, :, 0] * head.half_depth_m
     return np.stack([focal * front[:, 0] / front[:, 2] + width / 2, focal * front[:, 1] / front[:, 2] + height / 2], -1)
+
+
+def _regression_for_frames(regression, width: int, height: int):
+    """The regression with ``f2`` in rows of ``width × height`` frames, and the factor ``h / h_train``
+    (:func:`~jaxgaze.headpose.regression.training_image_scale`); warns when the training size is
+    unknown or of another aspect ratio."""
+    trained = getattr(regression, "image_size", None)
+    if trained is None:
+        warnings.warn(f"the gaze regression does not know the size of its training images: its depth rows f2 are "
+                      f"taken as rows of these {width}x{height} px frames (fit it with image_size=(width, height) or "
+                      f"use regression._replace(image_size=(width, height)))", stacklevel=3)
+        return regression, 1.0
+    scale = training_image_scale(regression, (width, height))
+    if abs(width / trained[0] - scale) > 0.01 * scale:
+        warnings.warn(f"the frames are {width}x{height} px but the gaze regression was trained on {trained[0]}x"
+                      f"{trained[1]} px images (another aspect ratio): its depth rows are scaled by the heights, "
+                      f"x {scale:.4g}", stacklevel=3)
+    return (regression if scale == 1 else RescaledRegression(regression, scale)), scale
 
 
 def attend_frames(
@@ -360,11 +391,20 @@ def attend_frames(
     the head centre in the image is the projected front of the face (the cylinder's
     centre plus ``half_depth`` along the facing direction). The regression (trained on
     ``(pitch, yaw, roll)``, or with the position appended if it has 6 features) predicts
-    ``f1``, ``f2`` per frame, :func:`~jaxgaze.headpose.target.target_point` and
+    ``f1``, ``f2`` per frame (``f2`` scaled to the frames' size, below), :func:`~jaxgaze.headpose.target.target_point` and
     :func:`target_point_covariance` give the target points, and each non-overlapping
     window of ``window`` frames (a trailing incomplete one is dropped) is attended by
     :func:`attend_window` on its **last** frame, from the points of its tracked frames.
     ``frames`` may be an iterator (only each window's last frame is kept).
+
+    ``focal_px`` is the focal length (px) of the camera that took ``frames``. The
+    regression's ``f2`` is a row of its training images (``regression.image_size``): on
+    frames ``s = h / h_train`` times as tall it is scaled by ``s`` (variance ``s²``), as
+    :class:`~jaxgaze.headpose.regression.RescaledRegression` does, assuming the same camera
+    at another resolution (so ``focal_px`` is then ``s`` times the training focal length);
+    the factor is ``AttentionWindows.image_scale``. A ``UserWarning`` says when the
+    frames' aspect ratio differs (rows still scale by the heights) and when the training
+    size is unknown (``image_size`` ``None``: ``f2`` is taken as rows of these frames).
 
     Raises:
         ValueError: ``window < 1``, fewer frames than one window, a bad ``focal_px``, and
@@ -404,6 +444,7 @@ def attend_frames(
     if n < 1:
         raise ValueError(f"frames has {T} frames, fewer than one window of {window}")
     height, width = check_image(last[0], "frames").shape[:2]
+    regression, image_scale = _regression_for_frames(regression, width, height)
     tracked = np.all(np.isfinite(track.pose), 1) & np.all(np.isfinite(track.translation), 1)
     head_xy = np.full((T, 2), np.nan)
     head_xy[tracked] = _head_centre_image(track, focal, (width, height), head)[tracked]
@@ -442,5 +483,72 @@ def attend_frames(
         start_frame=np.arange(n) * window, pose=np.stack(pose), direction=np.asarray(direction),
         depth_y=np.asarray(depth), target_xy=np.stack(target), attended_xy=np.stack(attended),
         region_box=np.stack(region), probability=np.asarray(prob), valid=np.asarray(valid, bool),
-        head_xy=np.stack(hxy), reason=tuple(reason),
+        head_xy=np.stack(hxy), reason=tuple(reason), window=int(window), image_scale=float(image_scale),
     )
+
+
+# ---------------------------------------------------------------------------
+# Drawing
+
+#: The overlay's colours (RGB): the attended point, its salient region, the head centre and
+#: the regression's target point (a cross, on the gaze line from the head centre).
+OVERLAY_COLOURS = {"attended": (255, 0, 0), "region": (0, 255, 0), "head": (0, 160, 255), "target": (255, 255, 0)}
+_SHIFT = 4  # OpenCV's fractional bits: points drawn to 1/16 px
+
+
+def _cv_point(xy, limit: float):
+    """Image coordinates (corner origin) → OpenCV's fixed-point pixel indices (pixel centres at integers)."""
+    x, y = (float(np.clip(v - 0.5, -limit, limit)) for v in xy)
+    return round(x * 2**_SHIFT), round(y * 2**_SHIFT)
+
+
+def _disc(img: np.ndarray, xy, radius: float, colour) -> None:
+    """Fill the pixels whose centres are within ``radius`` of ``xy`` (image coordinates)."""
+    x, y = xy
+    rows = np.arange(max(0, math.floor(y - radius)), min(img.shape[0], math.ceil(y + radius) + 1))
+    cols = np.arange(max(0, math.floor(x - radius)), min(img.shape[1], math.ceil(x + radius) + 1))
+    inside = (cols[None, :] + 0.5 - x) ** 2 + (rows[:, None] + 0.5 - y) ** 2 <= radius**2
+    img[rows[:, None], cols[None, :]] = np.where(inside[..., None], colour, img[rows[:, None], cols[None, :]])
+
+
+def draw_attention(image, windows: AttentionWindows, index: int) -> np.ndarray:
+    """A copy of ``image`` (as RGB ``uint8``) with window ``index`` of ``windows`` drawn on it.
+
+    The salient region box (green, 1 px), the gaze line from the head centre to the
+    regression's pooled target point (yellow, with a cross at the target), the head
+    centre (blue disc, radius 3 px) and the attended location (red disc, radius 4 px,
+    drawn last): :data:`OVERLAY_COLOURS`. A disc fills the pixels whose centres are within
+    its radius, so it is centred on the point to sub-pixel accuracy. What a window does not have (NaN: a lost
+    tracker, no location) is not drawn.
+    """
+    img = check_image(image)
+    if img.dtype != np.uint8:
+        img = np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
+    img = np.ascontiguousarray(np.repeat(img[..., None], 3, -1) if img.ndim == 2 else img).copy()
+    limit = 4.0 * max(img.shape)
+    colour = {k: tuple(int(c) for c in v) for k, v in OVERLAY_COLOURS.items()}
+    box, head = np.asarray(windows.region_box[index], float), np.asarray(windows.head_xy[index], float)
+    target, attended = np.asarray(windows.target_xy[index], float), np.asarray(windows.attended_xy[index], float)
+    if np.all(np.isfinite(box)):  # pixel columns x_min … x_max − 1, rows y_min … y_max − 1
+        cv2.rectangle(img, _cv_point(box[:2] + 0.5, limit), _cv_point(box[2:] - 0.5, limit), colour["region"], 1,
+                      cv2.LINE_8, _SHIFT)
+    if np.all(np.isfinite(target)):
+        if np.all(np.isfinite(head)):
+            cv2.line(img, _cv_point(head, limit), _cv_point(target, limit), colour["target"], 1, cv2.LINE_8, _SHIFT)
+        x, y = (round(v / 2**_SHIFT) for v in _cv_point(target, limit))
+        cv2.drawMarker(img, (x, y), colour["target"], cv2.MARKER_CROSS, 11, 1, cv2.LINE_8)
+    if np.all(np.isfinite(head)):
+        _disc(img, head, 3.0, colour["head"])
+    if np.all(np.isfinite(attended)):
+        _disc(img, attended, 4.0, colour["attended"])
+    return img
+
+
+def attention_overlay(frames, windows: AttentionWindows):
+    """The frames of ``windows``' windows, each with its window drawn (:func:`draw_attention`),
+    one at a time; frames after the last complete window are not yielded."""
+    total = len(windows.start_frame) * windows.window
+    for t, frame in enumerate(iterate_frames(frames)):
+        if t >= total:
+            return
+        yield draw_attention(frame, windows, t // windows.window)

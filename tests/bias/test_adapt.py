@@ -173,7 +173,14 @@ BAD = {
     "flags shape": (lambda d: dict(partner_speaking=d["partner_speaking"][:10]), "partner_speaking",
                     ["partner_speaking", "shape"]),
     "no selectable frames": (lambda d: dict(partner_speaking=np.zeros(d["num_frames"], bool)), "partner_speaking",
-                             ["no selectable frames", "speaks in 0"]),
+                             ["no selectable frames", "the partner speaks in 0 frames"]),
+    # ben speaks only after the window; ann speaks inside it: the span given is ben's own.
+    "partner speaks late": (lambda d: dict(partner_speaking=SpeechSegments(
+        np.array([0.0, 10.0, 80.0]), np.array([5.0, 20.0, 95.5]), ("ann", "ann", "ben")), partner="ben"),
+        "partner_speaking", ["partner 'ben' speaks in 0 frames (partner 'ben' speaks from 80 to 95.5 s)"]),
+    "one speaking frame": (lambda d: dict(partner_speaking=np.arange(d["num_frames"]) == 3,
+                                          target=d["target"] + [0.0, 0.0, 50.0]), "partner_speaking",
+                           ["speaks in 1 frame, and in none of those is the head within 30 degrees"]),
     "too few for lmeds": (lambda d: dict(method="lmeds", num_frames=2), "num_frames", ["lmeds", "num_frames >= 3"]),
     "unknown method": (lambda d: dict(method="median"), "method", ["unknown method 'median'"]),
     "unknown partner": (lambda d: dict(partner_speaking=d["segments"], partner="cat"), "partner",

@@ -2,6 +2,13 @@
 
 import csv
 import json
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+from pathlib import Path
 from types import SimpleNamespace
 
 import cv2
@@ -10,6 +17,7 @@ import numpy as np
 import pytest
 from tests.cli.helpers import assert_failed, run_main
 
+import jaxgaze
 from jaxgaze.cli import main
 from jaxgaze.io.attend import ATTEND_COLUMNS
 from jaxgaze.io.models import load_gaze_regression
@@ -19,6 +27,8 @@ from jaxgaze.geometry import head_pose_to_rotation, rotation_to_head_pose
 from jaxgaze.vision.head_model import frontal_rotation
 from jaxgaze.io.video import read_frames, write_video
 from jaxgaze.simulate.video import render_tabletop_video
+from jaxgaze.vision import attend as vision_attend
+from jaxgaze.vision.attend import OVERLAY_COLOURS, AttentionWindows
 
 DEMO_FRAMES = 14  # + 10 lead-in frames = 24 frames = 6 windows of 4
 
@@ -153,7 +163,16 @@ def test_attend_errors(fitted, tmp_path, capsys):
            out, "directory does not exist")
     blank = tmp_path / "blank.mkv"
     write_video(blank, [np.full((120, 160, 3), 90, np.uint8)] * 4, 10)
-    _fails(capsys, ["attend", blank, "--model", fitted.model, "--out", out], out, "no face found", "blank.mkv")
+    _fails(capsys, ["attend", blank, "--model", fitted.model, "--out", out], out,
+           "no face found in the first frame", "pass --initial-box", "blank.mkv")
+    status, _, stderr = run_main(capsys, ["attend", blank, "--model", fitted.model, "--out", out, "--initial-box",
+                                          "500", "10", "20", "20"])
+    assert status == 2 and "--initial-box (500" in stderr and "initial_box" not in stderr
+    for overlay, words in ((tmp_path / "o.mov", ("--overlay", "'.mov' is not a video extension", "o.mov")),
+                           (tmp_path, ("--overlay", "exists and is not an empty folder")),
+                           (out, ("--overlay and --out must be different files",))):
+        _fails(capsys, ["attend", fitted.video, "--model", fitted.model, "--out", out, "--overlay", overlay], out,
+               *words)
 
 
 @pytest.mark.parametrize("argv", [
@@ -201,3 +220,112 @@ def test_fit_gaze_progress_bar_on_tty(fitted, tmp_path, capsys, monkeypatch):
         assert status == 0, stderr
         assert out.exists()
     assert calls == [True, False]
+
+
+# ---------------------------------------------------------------------------
+# The README's example, the overlay, a corrupt video
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
+def _readme_video_example():
+    """The Python snippet and the ``jaxgaze attend`` command of the README's "From video to the attended object"."""
+    text = README.read_text(encoding="utf-8")
+    section = text[text.index("From video to the attended object"):]
+    python = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    bash = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
+    command = next(line for line in bash.splitlines() if line.startswith("jaxgaze attend "))
+    return python, shlex.split(command.split("#")[0])[1:]
+
+
+def test_the_readme_snippet_and_the_command_attend_the_same_points(fitted, tmp_path, capsys, monkeypatch):
+    """The README's video example as written, on the demo video and model of 'fit-gaze' (Yücel et al. 2013):
+    the Python snippet and 'jaxgaze attend' agree window by window, on the objects on the table (the
+    model's 320 x 240 rows scaled to the 640 x 480 video; unscaled, the points land by the face)."""
+    python, argv = _readme_video_example()
+    write_video(tmp_path / "demo.mp4", fitted.frames, 10.0)  # as 'fit-gaze --demo-video demo.mp4' writes it
+    shutil.copy(fitted.model, tmp_path / "gp.json")
+    monkeypatch.chdir(tmp_path)
+    namespace = {"jg": jaxgaze}
+    exec(python, namespace)
+    snippet = namespace["out"]
+    status, _, stderr = run_main(capsys, argv)
+    assert status == 0, stderr
+    assert "model image rows scaled x 2 to the 640x480 px video" in stderr and "warning" not in stderr
+    _, rows = _rows(tmp_path / "attend.csv")
+    assert snippet.image_scale == 2.0 and len(rows) == len(snippet.valid) == 6
+    valid = np.array([r["valid"] == "1" for r in rows])
+    np.testing.assert_array_equal(valid, snippet.valid)
+    assert valid.sum() >= 4
+
+    def table(*columns):
+        return np.array([[float(r[c]) for c in columns] for r in rows if r["valid"] == "1"])
+
+    np.testing.assert_array_equal(table("attended_x", "attended_y"), snippet.attended_xy[valid])
+    np.testing.assert_array_equal(table("region_x_min", "region_y_min", "region_x_max", "region_y_max"),
+                                  snippet.region_box[valid])
+    np.testing.assert_allclose(table("probability")[:, 0], snippet.probability[valid], rtol=1e-4)  # float32/64
+    boxes = fitted.truth.object_boxes_image  # the attended points are in the band of the objects' rows
+    y = snippet.attended_xy[valid, 1]
+    assert np.all((y >= boxes[:, 1].min() - 10) & (y <= boxes[:, 3].max() + 10)), (y, boxes)
+    # The overlay: every frame of the windows, with the attended point drawn (mp4: lossy, so a red patch).
+    overlay = read_frames(tmp_path / argv[argv.index("--overlay") + 1])
+    assert len(overlay) == 24 and overlay[0].shape == (480, 640, 3)
+    for t, frame in enumerate(overlay):
+        if valid[t // 4]:
+            x, y = np.floor(snippet.attended_xy[t // 4]).astype(int)
+            r, g, b = frame[y - 1:y + 2, x - 1:x + 2].reshape(-1, 3).mean(0)
+            assert r > 170 and g < 90 and b < 90, (t, r, g, b)
+
+
+def _windows(count, window):
+    """Windows with nothing attended (what the overlay draws does not matter here)."""
+    nan2 = np.full((count, 2), np.nan)
+    return AttentionWindows(np.arange(count) * window, np.zeros((count, 3)), np.zeros(count), np.zeros(count), nan2,
+                            nan2, np.full((count, 4), np.nan), np.zeros(count), np.zeros(count, bool), nan2,
+                            ("tracker lost",) * count, window, 1.0)
+
+
+def test_attend_overlay_as_png_folder_and_an_interrupt_while_drawing(fitted, tmp_path, capsys, monkeypatch):
+    """The overlay is exact in a PNG folder (the attended discs where the windows say); an interrupt while
+    drawing leaves neither the CSV nor the overlay (exit 130). The attention itself is stubbed."""
+    windows = _windows(6, 4)._replace(valid=np.ones(6, bool), reason=("",) * 6,
+                                      attended_xy=np.array([[100.5 + 20 * w, 300.5] for w in range(6)]))
+    monkeypatch.setattr(vision_attend, "attend_frames", lambda *args, **kwargs: windows)
+    out, folder = tmp_path / "a.csv", tmp_path / "frames"
+    status, _, stderr = run_main(capsys, ["attend", fitted.video, "--model", fitted.model, "--out", out,
+                                          "--overlay", folder])
+    assert status == 0, stderr
+    assert f"overlay of 24 frames written to {folder}" in stderr
+    drawn = read_frames(folder)
+    assert len(drawn) == 24
+    for t, (frame, original) in enumerate(zip(drawn, fitted.frames)):
+        red = np.argwhere(np.any(frame != original, -1) & np.all(frame == OVERLAY_COLOURS["attended"], -1))
+        np.testing.assert_allclose(red.mean(0) + 0.5, windows.attended_xy[t // 4][::-1], atol=1e-9)
+
+    def interrupted(image, windows, index):
+        if index == 2:
+            raise KeyboardInterrupt
+        return image
+
+    monkeypatch.setattr(vision_attend, "draw_attention", interrupted)
+    out.write_text("old")
+    for overlay in (tmp_path / "new", tmp_path / "new.avi"):
+        status, _, stderr = run_main(capsys, ["attend", fitted.video, "--model", fitted.model, "--out", out,
+                                              "--overlay", overlay])
+        assert status == 130 and stderr.strip().splitlines()[-1] == "jaxgaze: interrupted"
+        assert out.read_text() == "old"
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "frames"]  # no overlay, no temporary file
+
+
+def test_a_corrupt_video_gives_one_error_line_and_exit_2(fitted, tmp_path):
+    """FFmpeg's own complaint ('moov atom not found') stays off stderr: only jaxgaze's line (a subprocess,
+    as FFmpeg's logging is set up once per process)."""
+    corrupt, out = tmp_path / "clip.mp4", tmp_path / "a.csv"
+    corrupt.write_bytes(np.random.default_rng(0).bytes(20000))
+    env = {k: v for k, v in os.environ.items() if k != "OPENCV_FFMPEG_LOGLEVEL"} | {"JAX_PLATFORMS": "cpu"}
+    done = subprocess.run([sys.executable, "-m", "jaxgaze.cli", "attend", str(corrupt), "--model", str(fitted.model),
+                           "--out", str(out)], capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 2
+    assert done.stderr.splitlines() == [f"jaxgaze: error: cannot open video: not a video OpenCV can read ({corrupt})"]
+    assert done.stdout == "" and not out.exists()

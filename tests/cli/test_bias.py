@@ -231,6 +231,7 @@ def test_bias_openface_bayes_with_targets_csv(dyad, tmp_path, capsys):
     assert lines[0].startswith("jaxgaze: warning: ") and "dropped" in lines[0]
     assert f"success == 0: {dropped['success == 0']}" in lines[0]
     assert lines[1].startswith("jaxgaze: bias (yaw, tilt) = ")
+    assert "targets in the camera frame (+x forward along the optical axis, +y left, +z up" in lines[1]
     record = json.loads(out.read_text())
     assert record["input"]["format"] == "openface" and record["input"]["frame_of_reference"] == "camera"
     assert record["dropped"] == dropped
@@ -282,7 +283,7 @@ def test_bias_csv_mean_fps_and_targets_override(dyad, tmp_path, capsys):
 
     # Far-away targets given with --targets replace the file's (true) ones: the selection then finds nothing.
     status, stdout, stderr = run_main(capsys, ["bias", dyad["gaze"], "--speech", dyad["rttm"], "--partner", "ben",
-                                               "--targets=-50,0,0", "--method", "mean", "--out", tmp_path / "b.json"])
+                                               "--targets", "-50,0,0", "--method", "mean", "--out", tmp_path / "b.json"])
     assert_failed(status, stdout, stderr, "no selectable frames")
 
 
@@ -389,10 +390,13 @@ FAILURES = {
                          ("dyad.rttm", None)),
     "several recordings": (lambda d, x: [d["gaze"], "--speech", _replace_line(
         d["rttm"], x, 2, lambda ln: ln.replace(" dyad ", " other ")), "--partner", "ben"],
-        ["several recordings", "--speech-file-id"], ("dyad.rttm", None)),
+        ["holds 2 recordings", "--speech-file-id"], ("dyad.rttm", 3)),
     "no selectable frames": (lambda d, x: [d["gaze"], "--speech", _speech_csv(
-        x, "start,end,speaker\n100,130,ben\n"), "--method", "mean"], ["no selectable frames", "partner 'ben'"],
+        x, "start,end,speaker\n0,50,ann\n100,130,ben\n"), "--partner", "ben", "--method", "mean"],
+        ["no selectable frames", "partner 'ben' speaks in 0 frames (partner 'ben' speaks from 100 to 130 s)"],
         ("ann_gaze.csv", None)),
+    "targets not a point": (lambda d, x: _openface_args(d, targets="1,2"),
+                            ["--targets: expected X,Y,Z (3 numbers) or a CSV file, got 2 number(s)"], ("", None)),
     "no timestamps": (lambda d, x: [d["bare"], "--speech", d["rttm"], "--partner", "ben", "--targets",
                                     d["world_targets"]], ["no timestamp column", "--fps"], ("ann_bare.csv", None)),
     "fps disagrees": (lambda d, x: _gaze_args(d, d["gaze"]) + ["--fps", "25"], ["--fps 25 disagrees"],
@@ -402,7 +406,7 @@ FAILURES = {
     "unwritable out": (lambda d, x: _gaze_args(d, d["gaze"]) + ["--out", x / "missing" / "b.json"],
                        ["cannot write output: directory does not exist"], ("b.json", None)),
     "same per-frame and out": (lambda d, x: _gaze_args(d, d["gaze"]) + ["--per-frame", "{out}"],
-                               ["--per-frame and --out must be different files"], ("{out}", None)),
+                               ["--out and --per-frame must be different files"], ("{out}", None)),
 }
 
 
@@ -426,6 +430,22 @@ def test_bias_failure_modes(dyad, tmp_path, capsys, name):
         assert stderr.rstrip("\n").endswith(f"{where})" if line is None else f"{where}:{line})"), stderr
     assert (sorted(os.listdir(outputs)), sorted(os.listdir(inputs))) == before  # no output, no temporary file
     assert kept.read_text() == "precious\n"
+
+
+def test_bias_no_selectable_frames_keeps_the_reader_warnings(dyad, tmp_path, capsys):
+    """The one error line keeps the reader's warnings (OpenFace's dropped frames); the README's old
+    --targets, 1.8 m above the camera in our camera frame, gets a hint naming that frame."""
+    late = _speech_csv(tmp_path, "start,end,speaker\n0,50,ann\n100,130,ben\n")
+    for targets, words in ((dyad["camera_targets"], "partner 'ben' speaks in 0 frames (partner 'ben' speaks from 100 "
+                                                    "to 130 s)"),
+                           ("0,0.3,1.8", "is the target in the camera frame (+x forward along the optical axis, +y "
+                                         "left, +z up; not OpenCV's), in metres?")):
+        speech = late if targets == dyad["camera_targets"] else dyad["rttm"]
+        status, stdout, stderr = run_main(capsys, ["bias", *_openface_args(dyad, speech=speech, targets=targets),
+                                                   "--method", "mean", "--out", tmp_path / "b.json"])
+        assert_failed(status, stdout, stderr, "no selectable frames", words, "; reader warning: ", "dropped",
+                      f"success == 0: {dyad['dropped']['success == 0']}")
+    assert sorted(os.listdir(tmp_path)) == ["speech.csv"]
 
 
 def test_bias_write_failure_leaves_nothing(dyad, tmp_path, capsys, monkeypatch):

@@ -91,13 +91,23 @@ def test_calibrate_with_posterior(session, tmp_path, capsys):
     assert summary["result"] == "successful"
     assert summary["r_hat_max"] < 1.05  # split r-hat of the one chain
     assert summary["ess_bulk_min"] >= 100 and summary["ess_tail_min"] >= 100 and summary["divergences"] <= 3
-    for name in ("eye_center[x]", "direction[y]", "bandwidth", "outlier_share"):
-        row = summary["parameters"][name]
-        assert row["hdi_5%"] <= row["mean"] <= row["hdi_95%"] and row["sd"] > 0 and row["r_hat"] < 1.05
-
     idata = arviz.from_netcdf(post)
     assert idata.posterior["eye_center"].shape[:2] == (1, 500)
     assert idata.posterior["bandwidth"].shape == (1, 500)
+    # Every parameter has its mean, sd and 90% HDI in the JSON, as arviz computes them from the written draws,
+    # and its ESS and split r-hat.
+    names = ["eye_center", "direction", "bandwidth", "outlier_share"]
+    table = arviz.summary(idata, var_names=names, kind="stats", hdi_prob=0.9, round_to="none")
+    assert sorted(summary["parameters"]) == sorted(table.index) and len(table) == 8
+    for name, row in summary["parameters"].items():
+        expected = table.loc[name]
+        for column in ("mean", "sd", "hdi_5%", "hdi_95%"):
+            assert row[column] == pytest.approx(expected[column], rel=1e-9, abs=1e-12), (name, column)
+        assert row["hdi_5%"] < row["mean"] < row["hdi_95%"] and row["sd"] > 0 and row["r_hat"] < 1.05
+    for column in ("ess_bulk", "ess_tail"):  # the smallest ESS judged is that of one of these parameters
+        assert min(row[column] for row in summary["parameters"].values()) == summary[f"{column}_min"]
+    draws = idata.posterior["bandwidth"].values.ravel()
+    assert summary["parameters"]["bandwidth"]["sd"] == pytest.approx(draws.std(ddof=1), rel=1e-9)
 
 
 def test_calibrate_posterior_that_did_not_mix_exits_1(session, tmp_path, capsys):
@@ -124,8 +134,73 @@ def test_calibrate_in_millimetres_is_refused(session, tmp_path, capsys):
                                                               poses.frame_ids))
     out = tmp_path / "c.json"
     status, stdout, stderr = run_main(capsys, ["calibrate", directory / "a.csv", directory / "b.csv", "--out", out])
-    assert_failed(status, stdout, stderr, "m from the camera", "millimetres")
+    assert_failed(status, stdout, stderr, "positions look like millimetres (points of regard up to",
+                  "poses must be in metres")
     assert not out.exists()
+
+
+def test_calibrate_warns_of_implausible_speeds(session, tmp_path, capsys):
+    """Timestamps in minutes make the cameras move at hundreds of m/s: a warning naming the units, still a result."""
+    for name in ("a", "b"):
+        poses = session[f"poses_{name}"]
+        write_pose_csv(tmp_path / f"{name}.csv", poses._replace(timestamps=poses.frame_ids / 1800.0))
+    out = tmp_path / "c.json"
+    status, stdout, stderr = run_main(capsys, ["calibrate", tmp_path / "a.csv", tmp_path / "b.csv", "--out", out,
+                                               "-q"])
+    assert status == 0 and stdout == "" and out.exists()
+    lines = stderr.splitlines()
+    assert [line.split(" moves at")[0] for line in lines] == ["jaxgaze: warning: camera A", "jaxgaze: warning: camera B"]
+    assert all("or timestamps are not in seconds; poses must be in metres and timestamps in seconds" in line
+               for line in lines)
+
+
+def test_calibrate_shows_reader_warnings_as_warning_lines(session, tmp_path, capsys):
+    """A pose CSV cut off mid-write keeps its complete rows; the warning is one 'jaxgaze: warning:' line."""
+    cut = tmp_path / "cut.csv"
+    cut.write_text(session["a"].read_text() + "999,1,0")
+    status, stdout, stderr = run_main(capsys, ["calibrate", cut, session["b"], "--out", tmp_path / "c.json", "-q"])
+    assert status == 0 and stdout == ""
+    assert stderr.startswith("jaxgaze: warning: ") and "dropped the last row" in stderr
+    assert len(stderr.splitlines()) == 1
+
+
+JOINT = os.path.join(DATA, "colmap_joint_images.txt")
+
+
+def test_calibrate_two_wearers_of_one_joint_reconstruction(tmp_path, capsys):
+    """Cityscapes-like names in one COLMAP file of two wearers: selected by CAMERA_ID or name prefix, the frame ids
+    are the number that changes; both give what the two wearers' own files give, and the summary says the rule."""
+    records = []
+    for i, selection in enumerate((["--camera-id", "1", "2"], ["--name-prefix", "ann/", "ben/"])):
+        out = tmp_path / f"c{i}.json"
+        status, stdout, stderr = run_main(capsys, ["calibrate", JOINT, JOINT, "--out", out, "--wearer", "ann",
+                                                   *selection])
+        assert status == 0 and stdout == "", stderr
+        chosen = "CAMERA_ID 1" if i == 0 else "names starting with 'ann/'"
+        assert (f"colmap_joint_images.txt (30 of 60 images, {chosen}): frame ids from the one number that changes "
+                "in the image names (e.g. 'ann/aachen_000003_000000_leftImg8bit.png' → 0)") in stderr
+        records.append(json.loads(out.read_text()))
+    from jaxgaze.io.poses import read_colmap_images
+
+    for name, camera in (("ann", 1), ("ben", 2)):
+        write_pose_csv(tmp_path / f"{name}.csv", read_colmap_images(JOINT, camera_id=camera))
+    status, _, stderr = run_main(capsys, ["calibrate", tmp_path / "ann.csv", tmp_path / "ben.csv", "--out",
+                                          tmp_path / "own.json"])
+    assert status == 0 and "ann.csv: frame ids from its 'frame' column; ben.csv: " in stderr
+    assert records[0] == records[1] == json.loads((tmp_path / "own.json").read_text())
+    assert records[0]["num_points"] == 30
+
+
+def test_calibrate_frame_pattern(tmp_path, capsys):
+    out = tmp_path / "c.json"
+    status, _, stderr = run_main(capsys, ["calibrate", JOINT, JOINT, "--out", out, "--camera-id", "2", "1",
+                                          "--frame-pattern", r"_(\d+)_leftImg8bit"])
+    assert status == 0 and out.exists()
+    assert stderr.count(r"frame ids from the image names by the pattern '_(\d+)_leftImg8bit'") == 2
+    status, stdout, stderr = run_main(capsys, ["calibrate", JOINT, JOINT, "--out", tmp_path / "d.json",
+                                               "--frame-pattern", r"\d+"])
+    assert_failed(status, stdout, stderr, r"--frame-pattern: frame pattern '\d+' must have exactly one group")
+    assert sorted(os.listdir(tmp_path)) == ["c.json"]
 
 
 def test_calibrate_point_estimate_colmap_wearer(session, tmp_path, capsys):
@@ -191,6 +266,14 @@ def _two_frames(session, directory):
     return session["a"], path
 
 
+def _cityscapes(directory):
+    """Names whose city and frame numbers both change: which one is the frame?"""
+    path = directory / "images.txt"
+    path.write_text("".join(f"{k + 1} 1 0 0 0 0 0 {k} 1 aachen_{k:06d}_{k + 19:06d}_leftImg8bit.png\n\n"
+                            for k in range(4)))
+    return path
+
+
 CALIBRATE_FAILURES = {
     # name: (make(session, dir) -> (POSES_A, POSES_B), extra args, expected words, where: 'a', 'b', 'out', 'post', line)
     "missing file": (lambda s, d: (d / "nope.csv", s["b"]), [], ["pose file not found"], ("a", None)),
@@ -201,6 +284,17 @@ CALIBRATE_FAILURES = {
     "no matching frames": (_shifted_frames, [], ["no matching frames"], ("a", None)),
     "two frames": (_two_frames, [], ["only 2 frame(s) in common", "at least 3"], ("a", None)),
     "behind camera": (lambda s, d: _behind_camera(d), [], ["calibration failed", "behind the camera"], ("a", None)),
+    "same file twice": (lambda s, d: (s["a"], s["a"]), [], ["the two pose tracks are identical in all 80 matched",
+                                                            "same file twice", "every point of regard is zero"],
+                        ("a", None)),
+    "joint file, no selection": (lambda s, d: (JOINT, JOINT), [], ["duplicate frame 0", "several wearers' images? "
+                                 "select one wearer's images by camera id or name prefix"], ("a", 13)),
+    "unknown camera id": (lambda s, d: (JOINT, JOINT), ["--camera-id", "1", "3"], ["no image has CAMERA_ID 3"],
+                          ("b", None)),
+    "camera id of a csv": (lambda s, d: (s["a"], s["b"]), ["--camera-id", "1", "any"],
+                           ["selects images of a COLMAP images.txt"], ("a", None)),
+    "ambiguous frame ids": (lambda s, d: (s["a"], _cityscapes(d)), [], ["frame ids are ambiguous",
+                            "give a frame pattern"], ("b", 1)),
     "unwritable out": (lambda s, d: (s["a"], s["b"]), ["--out", "{dir}/missing/c.json"],
                        ["cannot write output: directory does not exist"], ("out", None)),
     "unwritable posterior": (lambda s, d: (s["a"], s["b"]), ["--posterior", "{dir}/missing/p.nc"],
@@ -387,9 +481,9 @@ def test_concurrences_with_calibration(tmp_path, capsys):
     assert [int(r[0]) for r in rows] == sorted(SCENE)
     for row in rows:
         target = np.asarray(SCENE[int(row[0])][0])
-        location = np.array([float(x) for x in row[2:5]])
+        location = np.array([float(row[header.index(c)]) for c in ("x", "y", "z")])
         assert np.linalg.norm(location - target) < 5e-3, (row, target)
-        assert int(row[8]) == 3
+        assert int(row[header.index("num_rays")]) == 3
 
     # The same rays written out by hand go through the plain path to the same result.
     plain = write_rows(tmp_path / "rays.csv", CSV_COLUMNS + ("bandwidth",), rays)

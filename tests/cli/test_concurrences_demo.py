@@ -155,9 +155,11 @@ def test_concurrences_bandwidth_column_and_quiet(tmp_path, capsys):
     status, _, _ = run_main(capsys, ["concurrences", plain, "--out", tmp_path / "plain_out.csv", "-q", *CHUNK])
     _, with_default = read_output(tmp_path / "plain_out.csv")
     assert status == 0 and len(with_default) == len(with_bandwidth)
+    x, var = OUTPUT_COLUMNS.index("x"), OUTPUT_COLUMNS.index("var_x")
+
     def variances(rows):  # rows in the same order: by frame, then x
-        rows = sorted(rows, key=lambda r: (int(r[0]), float(r[2])))
-        return np.array([[float(x) for x in r[5:8]] for r in rows])
+        rows = sorted(rows, key=lambda r: (int(r[0]), float(r[x])))
+        return np.array([[float(v) for v in r[var:var + 3]] for r in rows])
 
     assert np.all(variances(with_bandwidth) < variances(with_default))
 
@@ -184,11 +186,12 @@ def test_entry_point_subprocess_and_min_rays(entry_point_run):
     header, rows = read_output(out)
     assert tuple(header) == OUTPUT_COLUMNS
     # Only concurrences of at least 3 rays remain: frame 11's pair looking at A is dropped.
-    assert sorted((int(r[0]), int(r[8])) for r in rows) == [(10, 3), (10, 3), (11, 3), (11, 4), (13, 3)]
+    rays, x = OUTPUT_COLUMNS.index("num_rays"), OUTPUT_COLUMNS.index("x")
+    assert sorted((int(r[0]), int(r[rays])) for r in rows) == [(10, 3), (10, 3), (11, 3), (11, 4), (13, 3)]
     expected = {(10, 3): (POINT_A, POINT_B), (11, 3): (POINT_C,), (11, 4): (POINT_B,), (13, 3): (POINT_B,)}
     for r in rows:
-        loc = np.array([float(x) for x in r[2:5]])
-        assert min(np.linalg.norm(loc - p) for p in expected[(int(r[0]), int(r[8]))]) < 5e-3
+        loc = np.array([float(v) for v in r[x:x + 3]])
+        assert min(np.linalg.norm(loc - p) for p in expected[(int(r[0]), int(r[rays]))]) < 5e-3
 
     stdout, stderr = failing.communicate(timeout=300)
     assert failing.returncode == 2 and stdout == ""
@@ -241,6 +244,8 @@ FAILURES = {
     "zero bandwidth": ("bandwidth=0", "bandwidth must be positive (radians), got 0", 3),
     "negative bandwidth": ("bandwidth=-0.1", "bandwidth must be positive (radians), got -0.1", 3),
     "nan bandwidth": ("bandwidth=nan", "column 'bandwidth' is not finite", 3),
+    "bandwidth in degrees": ("bandwidth=3", "bandwidth 3 rad (172°) is no gaze cone width: it is in radians "
+                             "(degrees? 3° is 0.0524 rad)", 3),
     "not utf-8": (",".join(CSV_COLUMNS).encode() + b"\n1,a,0,0,1,1,0,0\n1,caf\xe9,0,0,1,1,0,0\n",
                   "input is not UTF-8 text", 3),
     "bad quoting": (",".join(CSV_COLUMNS) + '\n1,a,0,0,1,1,0,0\n1,"b"x,0,0,1,1,0,0\n', "malformed CSV", 3),
@@ -351,6 +356,125 @@ def test_help_and_version(capsys):
 
 
 # ---------------------------------------------------------------------------
+# Outputs a user can use: full covariance, tracks, members, mutual gaze, a figure (issue 20)
+
+# Frame 14: m0 and m1 look at each other, three people look at A. At most 11 people in a
+# frame, so that these runs share the compiled (CHUNK, 11) program of the tests above.
+_MUTUAL = [("m0", (0.0, 6.0, 1.6), (2.0, 6.0, 1.6)), ("m1", (2.0, 6.0, 1.6), (0.0, 6.0, 1.6))]
+
+
+def mutual_rows():
+    rows = scene_rows()
+    for person, eye, target in _MUTUAL:
+        rows.append([14, person, *eye, *(np.subtract(target, eye))])
+    for i, eye in enumerate(_EYES_A[:3]):
+        rows.append([14, f"a{i}", *eye, *(f"{x:.9f}" for x in POINT_A - np.asarray(eye))])
+    return rows
+
+
+def _table(path):
+    header, rows = read_output(path)
+    return header, [dict(zip(header, r)) for r in rows]
+
+
+def test_concurrences_full_covariance_tracks_members_mutual_gaze_and_figure(tmp_path, capsys):
+    from jaxgaze.concurrence import find_concurrences_over_frames, track_concurrences
+    from jaxgaze.io.concurrences import MEMBER_COLUMNS
+    from jaxgaze.io.rays import read_rays_csv
+
+    src = write_csv(tmp_path / "rays.csv", mutual_rows())
+    out, members, figure = tmp_path / "out.csv", tmp_path / "members.csv", tmp_path / "top.png"
+    status, stdout, stderr = run_main(capsys, ["concurrences", src, "--out", out, "--members", members,
+                                               "--figure", figure, *CHUNK])
+    assert status == 0 and stdout == "", stderr
+    assert stderr.splitlines() == [f"jaxgaze: 7 concurrence(s) in 4 frame(s) written to {out}; "
+                                   f"1 mutual-gaze pair(s) (in {members})"]
+    assert sorted(os.listdir(tmp_path)) == ["members.csv", "out.csv", "rays.csv", "top.png"]
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    # The library on the same file: the CSV holds its covariances (6 unique entries) and tracks.
+    recording = read_rays_csv(src)
+    found = find_concurrences_over_frames(recording.rays, frames_per_batch=12)
+    tracks = np.asarray(track_concurrences(found).track_ids)
+    header, rows = _table(out)
+    assert tuple(header) == OUTPUT_COLUMNS
+    slots = np.argwhere(np.asarray(found.valid))
+    assert len(rows) == len(slots) == 7
+    for row, (t, k) in zip(rows, slots):
+        assert (int(row["frame"]), int(row["mode"]), int(row["track"])) == (recording.frame_ids[t], k, tracks[t, k])
+        v = {c: float(row[c]) for c in header[6:12]}
+        cov = np.array([[v["var_x"], v["cov_xy"], v["cov_xz"]], [v["cov_xy"], v["var_y"], v["cov_yz"]],
+                        [v["cov_xz"], v["cov_yz"], v["var_z"]]])
+        np.testing.assert_allclose(cov, np.asarray(found.covariances[t, k]), rtol=1e-5, atol=1e-12)
+        assert np.all(np.linalg.eigvalsh(cov) > 0)  # symmetric by construction, positive definite
+        assert float(row["degrees_of_freedom"]) > 4
+    assert {int(r["frame"]) for r in rows if r["frame"] == "14"} == {14}
+    frame14 = [r for r in rows if r["frame"] == "14"]
+    assert len(frame14) == 1 and int(frame14[0]["num_rays"]) == 3  # A's group; the mutual pair is no concurrence
+
+    # Members: one row per (frame, person); each group supports the mode at its point.
+    header, people = _table(members)
+    assert tuple(header) == MEMBER_COLUMNS and len(people) == len(mutual_rows())
+    modes = {(r["frame"], r["mode"]): r for r in rows}
+    for person in people:
+        group = person["person"].rstrip("0123456789")
+        mode = int(person["mode"])
+        if group in POINTS:
+            if mode >= 0:  # frame 11's pair looking at A is a concurrence too
+                located = modes[(person["frame"], person["mode"])]
+                point = np.array([float(located[c]) for c in ("x", "y", "z")])
+                assert np.linalg.norm(point - POINTS[group]) < 5e-3
+                assert person["track"] == located["track"]
+            else:
+                pytest.fail(f"{person} supports no concurrence")
+        else:  # loners and the mutual pair
+            assert mode == -1 and person["track"] == "-1"
+        expected_partner = {"m0": "m1", "m1": "m0"}.get(person["person"], "")
+        assert person["mutual_gaze"] == expected_partner
+
+
+def test_concurrences_units_caught_at_the_door(tmp_path, capsys):
+    """Origins in millimetres: no concurrence and one warning line naming the unit;
+    --bandwidth 3 (degrees meant): exit 2 before any work; 0.7 rad: a warning."""
+    mm = [[r[0], r[1], *(1000.0 * float(x) for x in r[2:5]), *r[5:]] for r in scene_rows()]
+    src, out = write_csv(tmp_path / "mm.csv", mm), tmp_path / "out.csv"
+    status, _, stderr = run_main(capsys, ["concurrences", src, "--out", out, *CHUNK])
+    assert status == 0
+    warning, done = stderr.splitlines()
+    assert warning.startswith("jaxgaze: warning: the eyes of frame ") and warning.endswith("(millimetres?)")
+    assert done == f"jaxgaze: 0 concurrence(s) in 3 frame(s) written to {out}"
+    out.unlink()
+    status, stdout, stderr = run_main(capsys, ["concurrences", src, "--out", out, "--bandwidth", "3"])
+    assert_failed(status, stdout, stderr, "--bandwidth 3 rad (172°)", "degrees? 3° is 0.0524 rad")
+    assert not out.exists()
+    metres = write_csv(tmp_path / "m.csv", scene_rows())
+    status, _, stderr = run_main(capsys, ["concurrences", metres, "--out", out, "--bandwidth", "0.7", *CHUNK])
+    assert status == 0 and stderr.splitlines()[0] == ("jaxgaze: warning: bandwidth reaches 0.7 rad (40°), implausibly "
+                                                      "wide for a gaze cone: it is in radians (degrees? 0.7° is "
+                                                      "0.0122 rad)")
+
+
+@pytest.mark.parametrize("option, name, words", [
+    ("--figure", "top.xyz", "unsupported figure format '.xyz'"),
+    ("--figure", "missing/top.png", "cannot write figure: directory does not exist"),
+    ("--members", "missing/members.csv", "cannot write members table: directory does not exist"),
+    ("--members", "out.csv", "--out and --members must be different files"),
+])
+def test_concurrences_bad_output_paths_fail_before_work(tmp_path, capsys, monkeypatch, option, name, words):
+    import jaxgaze.concurrence.modes
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("computed before checking the outputs")
+
+    monkeypatch.setattr(jaxgaze.concurrence.modes, "find_concurrences_over_frames", no_work)
+    src = write_csv(tmp_path / "rays.csv", scene_rows())
+    status, stdout, stderr = run_main(capsys, ["concurrences", src, "--out", tmp_path / "out.csv",
+                                               option, tmp_path / name])
+    assert_failed(status, stdout, stderr, words)
+    assert sorted(os.listdir(tmp_path)) == ["rays.csv"]
+
+
+# ---------------------------------------------------------------------------
 # demo
 
 
@@ -358,22 +482,22 @@ def test_demo_writes_table_and_figure(tmp_path, capsys):
     figure = tmp_path / "demo.png"
     frames = DEMO_FRAMES
     status, stdout, stderr = run_main(
-        capsys, ["demo", "--frames", frames, "--seed", "1", "--figure", figure, *CHUNK]
+        capsys, ["demo", "--frames", frames, "--seed", "1", "--figure", figure, "-q", *CHUNK]
     )
     assert status == 0, stderr
-    assert stderr == ""  # no progress bar: stderr is not a terminal
+    assert stderr == ""  # -q: no stage lines (and no progress bar: stderr is not a terminal)
     with open(figure, "rb") as f:
         assert f.read(8) == b"\x89PNG\r\n\x1a\n"
     assert sorted(os.listdir(tmp_path)) == ["demo.png"]
     lines = stdout.splitlines()
     header = next(i for i, line in enumerate(lines) if line.split()[:4] == ["frame", "time_s", "K", "true_K"])
-    table = lines[header + 1: header + 1 + frames]
-    assert [int(line.split()[0]) for line in table] == list(range(frames))
-    for line in table:
-        k, true_k = int(line.split()[2]), int(line.split()[3])
+    table = [line.split() for line in lines[header + 1: lines.index("summary:")]]  # a row per (frame, concurrence)
+    assert sorted({int(row[0]) for row in table}) == list(range(frames))
+    for row in table:
+        k, true_k = int(row[2]), int(row[3])
         assert 0 <= k <= 5 and true_k >= 1
-        assert line.count("(") == k  # one location per concurrence
-    summary = "\n".join(lines[header + 1 + frames:])
+        assert sum(other[0] == row[0] for other in table) == max(k, 1)  # one row per concurrence
+    summary = "\n".join(lines[lines.index("summary:"):])
     assert "count accuracy" in summary and "median" in summary and "cm" in summary
     median = float(summary.split("median ")[1].split(" cm")[0])
     assert math.isfinite(median) and median < 20.0

@@ -1,6 +1,7 @@
 """Mean-shift, gaze concurrences and tracking against known truth."""
 
 import math
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -16,6 +17,7 @@ from scipy.stats import chi2
 import jaxgaze as jg
 from jaxgaze.concurrence.modes import _meanshift_step, ray_projector
 from jaxgaze.cone import sample_gaze_directions
+from jaxgaze.rays import UnitWarning, check_units
 
 TARGETS = np.array([[2.0, 3.0, 1.2], [-2.5, -1.0, 1.0]])
 
@@ -109,12 +111,18 @@ def test_bounds_reject_modes_outside_the_scene_volume():
     origins = np.array([[-2.0, 0, 1.7], [2.0, 0, 1.7], [0, 3, 1.7], [0, 6, 1.7]])
     targets = np.array([[0.0, 0, -1.0], [0, 0, -1.0], [1, 4.5, 0.8], [1, 4.5, 0.8]])
     rays = jg.GazeRays(origins, targets - origins, 0.02)
-    assert len(jg.find_concurrences(rays).locations) == 2
+    no_floor = jg.ConcurrenceOptions(floor_below_eyes=None)
+    assert len(jg.find_concurrences(rays, no_floor).locations) == 2
     room = [[-10.0, -10.0, 0.0], [10.0, 10.0, 3.0]]
-    inside = jg.find_concurrences(rays, jg.ConcurrenceOptions(bounds=room))
-    assert len(inside.locations) == 1
-    np.testing.assert_allclose(np.asarray(inside.locations[0]), [1, 4.5, 0.8], atol=1e-3)
-    np.testing.assert_array_equal(np.asarray(inside.membership), [-1, -1, 0, 0])
+    for options in (jg.ConcurrenceOptions(bounds=room, floor_below_eyes=None),
+                    jg.ConcurrenceOptions(floor_below_eyes=2.5),  # the default: 2.7 m under the eyes is too low
+                    jg.ConcurrenceOptions()):
+        inside = jg.find_concurrences(rays, options)
+        assert len(inside.locations) == 1
+        np.testing.assert_allclose(np.asarray(inside.locations[0]), [1, 4.5, 0.8], atol=1e-3)
+        np.testing.assert_array_equal(np.asarray(inside.membership), [-1, -1, 0, 0])
+    # A floor 3 m under the eyes keeps the point 2.7 m under them.
+    assert len(jg.find_concurrences(rays, jg.ConcurrenceOptions(floor_below_eyes=3.0)).locations) == 2
     with pytest.raises(ValueError, match="bounds"):
         jg.find_concurrences(rays, jg.ConcurrenceOptions(bounds=[[0.0, 0, 0], [1.0, -1, 1]]))
 
@@ -230,15 +238,17 @@ def random_rigid(rng):
 @given(seed=ray_sets)
 def test_concurrences_invariant_under_rigid_transforms(seed):
     """Rotating and translating the scene moves the result with it (float64, so that
-    rays sitting on a claim or prune threshold cannot flip on rounding)."""
+    rays sitting on a claim or prune threshold cannot flip on rounding). The floor rule
+    is about world +z up, so it is off here."""
     rng = np.random.default_rng(seed)
     R, t = random_rigid(rng)
+    any_frame = jg.ConcurrenceOptions(floor_below_eyes=None)
     with jax.enable_x64(True):
         rays32 = two_group_scene(jax.random.key(5))
         origins = np.asarray(rays32.origins, np.float64)
         directions = np.asarray(rays32.directions, np.float64)
-        base = jg.find_concurrences(jg.GazeRays(origins, directions, 0.02))
-        result = jg.find_concurrences(jg.GazeRays(origins @ R.T + t, directions @ R.T, 0.02))
+        base = jg.find_concurrences(jg.GazeRays(origins, directions, 0.02), any_frame)
+        result = jg.find_concurrences(jg.GazeRays(origins @ R.T + t, directions @ R.T, 0.02), any_frame)
     np.testing.assert_array_equal(np.asarray(result.membership), np.asarray(base.membership))
     np.testing.assert_allclose(np.asarray(result.locations), np.asarray(base.locations) @ R.T + t, atol=1e-6)
     rotated = R @ np.asarray(base.covariances) @ R.T
@@ -331,6 +341,8 @@ def test_tracker_bridges_short_gaps():
         ({"seed_depths": []}, "seed_depths"),
         ({"seed_depths": [1.0, float("nan")]}, "seed_depths"),
         ({"prior_scale": 0.0}, "prior_scale"),
+        ({"floor_below_eyes": 0.0}, "floor_below_eyes"),
+        ({"floor_below_eyes": float("inf")}, "floor_below_eyes"),
     ],
 )
 def test_bad_options_raise(scene_result, kwargs, message):
@@ -350,3 +362,98 @@ def test_wrong_ray_shapes_raise(scene_result):
         jg.find_concurrences(np.zeros((3, 3)))
     with pytest.raises(ValueError, match="track_concurrences"):
         jg.track_concurrences(jg.find_concurrences(rays))
+
+
+# ---------------------------------------------------------------------------
+# What the defaults do not call a concurrence, and the unit checks at the door (issue 20).
+# Closed forms: two people facing each other (mutual gaze), a third looking at one of them,
+# two people in a line looking the same way (a ridge, not a mode); a millimetre scene and
+# bandwidths in degrees. (Here, not in a file of their own: they share this file's compiled
+# 8-ray program.)
+
+EYE_A = np.array([0.0, 0.0, 1.6])
+EYE_B = np.array([2.0, 0.0, 1.6])
+EYE_C = np.array([1.0, 2.0, 1.6])
+H = 0.02
+
+
+def turned(direction, angle):
+    """``direction`` turned by ``angle`` radians about world +z."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ direction
+
+
+def test_two_people_facing_each_other_are_mutual_gaze_not_a_concurrence():
+    found = jg.find_concurrences(jg.GazeRays([EYE_A, EYE_B], [EYE_B - EYE_A, EYE_A - EYE_B], H))
+    assert found.locations.shape == (0, 3)  # before: a mode between them with sd 100 m along their line
+    np.testing.assert_array_equal(np.asarray(found.membership), [-1, -1])
+    np.testing.assert_array_equal(np.asarray(found.mutual_gaze), [1, 0])
+    np.testing.assert_array_equal(found.mutual_gaze_pairs(), [[0, 1]])
+
+
+@pytest.mark.parametrize("offset_bandwidths, mutual", [(2.0, True), (5.5, True), (6.5, False), (12.0, False)])
+def test_mutual_gaze_is_each_eye_in_the_others_claim_radius(offset_bandwidths, mutual):
+    """Closed form: a ray turned by α from the other's eye misses it by ‖d‖ = tan α; the pair is
+    mutual gaze while tan α / h is below the claim radius, 3 claim bandwidths × search scale 2 = 6."""
+    alpha = math.atan(offset_bandwidths * H)
+    rays = jg.GazeRays([EYE_A, EYE_B], [turned(EYE_B - EYE_A, alpha), turned(EYE_A - EYE_B, -alpha)], H)
+    found = jg.find_concurrences(rays)
+    np.testing.assert_array_equal(np.asarray(found.mutual_gaze), [1, 0] if mutual else [-1, -1])
+    # One looking at the other, the other away: not mutual.
+    away = jg.find_concurrences(jg.GazeRays([EYE_A, EYE_B], [EYE_B - EYE_A, turned(EYE_A - EYE_B, 0.5)], H))
+    np.testing.assert_array_equal(np.asarray(away.mutual_gaze), [-1, -1])
+
+
+def test_a_person_in_mutual_gaze_still_supports_a_concurrence_with_others():
+    """A and B look at each other, C looks at A: B and C concur at A's eyes."""
+    found = jg.find_concurrences(jg.GazeRays([EYE_A, EYE_B, EYE_C], [EYE_B - EYE_A, EYE_A - EYE_B, EYE_A - EYE_C], H))
+    assert len(found.locations) == 1
+    np.testing.assert_allclose(np.asarray(found.locations[0]), EYE_A, atol=1e-3)
+    np.testing.assert_array_equal(np.asarray(found.membership), [-1, 0, 0])
+    np.testing.assert_array_equal(np.asarray(found.mutual_gaze), [1, 0, -1])
+
+
+def test_a_mode_the_rays_do_not_bound_is_not_reported():
+    """Two people in a line looking the same way (B in front of A, no one facing anyone): their rays
+    overlap along the whole line, the prior alone would hold the mode there."""
+    rays = jg.GazeRays([EYE_A, EYE_B], [EYE_B - EYE_A, EYE_B - EYE_A], H)
+    found = jg.find_concurrences(rays)
+    assert found.locations.shape == (0, 3)
+    np.testing.assert_array_equal(np.asarray(found.mutual_gaze), [-1, -1])
+    # A slight convergence bounds it again: the rays cross 3 m ahead of B.
+    target = EYE_B + np.array([3.0, 0.0, 0.0]) + np.array([0.0, 0.5, 0.0])
+    crossing = jg.find_concurrences(jg.GazeRays([EYE_A, EYE_B + [0, 0.0, 0.3]], [target - EYE_A, target - EYE_B - [0, 0, 0.3]], H))
+    assert len(crossing.locations) == 1 and np.all(np.linalg.eigvalsh(np.asarray(crossing.covariances[0])) < 25.0)
+
+
+def test_mutual_gaze_with_too_few_people_for_a_mode_over_frames():
+    """min_rays 3 with two people per frame: no mode can exist, the mutual gaze is still reported
+    (the full search over frames reports it too: tests/cli/test_concurrences_demo.py)."""
+    frames = [jg.GazeRays([EYE_A, EYE_B], [EYE_B - EYE_A, EYE_A - EYE_B], H), jg.GazeRays([EYE_A, EYE_C], [turned(EYE_C - EYE_A, 0.5), EYE_A - EYE_C], H),
+              jg.GazeRays([EYE_C, EYE_A], [EYE_A - EYE_C, EYE_C - EYE_A], H)]
+    over = jg.find_concurrences_over_frames(jg.GazeRays.stack(frames), jg.ConcurrenceOptions(min_rays=3))
+    assert over.locations.shape == (3, 0, 3)
+    np.testing.assert_array_equal(np.asarray(over.mutual_gaze), [[1, 0], [-1, -1], [1, 0]])
+    np.testing.assert_array_equal(over.mutual_gaze_pairs(), [[0, 0, 1], [2, 0, 1]])
+    np.testing.assert_array_equal(np.asarray(over.frame(2).mutual_gaze), [1, 0])  # per person, not per mode
+    few = jg.find_concurrences(frames[0], jg.ConcurrenceOptions(min_rays=3))
+    np.testing.assert_array_equal(np.asarray(few.mutual_gaze), [1, 0])
+
+
+def test_units_caught_at_the_door():
+    origins = np.array([EYE_A, EYE_B, EYE_C, [1.0, -2.0, 1.2]])
+    target = np.array([1.0, 0.5, 0.8])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UnitWarning)  # a room in metres, a bandwidth in radians: no warning
+        assert len(jg.find_concurrences(jg.GazeRays(origins, target - origins, H)).locations) == 1
+    with pytest.warns(UnitWarning, match=r"spread over 4000 m.*\(millimetres\?\)"):
+        found = jg.find_concurrences(jg.GazeRays(1000.0 * origins, target - origins, H))
+    assert len(found.locations) == 0  # what a millimetre scene gives: hence the warning
+    with pytest.raises(ValueError, match=r"bandwidth 3 rad \(172°\) is no gaze cone width.*degrees\? 3° is 0.0524"):
+        jg.find_concurrences(jg.GazeRays(origins, target - origins, 3.0))
+    with pytest.warns(UnitWarning, match=r"bandwidth reaches 0.7 rad \(40°\).*degrees\?"):
+        check_units(jg.GazeRays(origins, target - origins, 0.7))
+    recording = jg.GazeRays.stack([jg.GazeRays(origins, target - origins, H), jg.GazeRays(1000.0 * origins,
+                                                                                          target - origins, H)])
+    with pytest.warns(UnitWarning, match="the eyes of frame 1 spread"):
+        check_units(recording)

@@ -17,7 +17,7 @@
 import numpy as np
 import pytest
 
-from jaxgaze import find_concurrences_over_frames
+from jaxgaze import ConcurrenceOptions, find_concurrences_over_frames, track_concurrences
 from jaxgaze.concurrence.metrics import count_accuracy, coverage, localisation_errors
 from tests import helpers as zoo
 
@@ -75,6 +75,20 @@ def test_meeting_transitions(meeting):
         assert right >= 0.9, f"phase {k}: count {expected} in only {100 * right:.0f} % of frames"
     errors = localisation_errors(found, scene)
     assert np.median(errors) < 0.10
+
+
+def test_meeting_defaults_no_mode_under_the_floor_and_five_tracks():
+    """The demo's meeting (150 frames, seed 0) with the default options alone: the two groups, the
+    presenter and the two groups again are 5 tracks, and no mode lies under the floor (z = 0).
+    Without the floor rule, two rays crossing 3.5 m under the eyes in frame 97 were a sixth track."""
+    scene = zoo.saliency_scene("meeting", 150)
+    found = find_concurrences_over_frames(scene.rays)
+    z = np.asarray(found.locations)[..., 2][np.asarray(found.valid)]
+    assert z.min() > 0.5  # the tables are 0.8 m high
+    assert int(track_concurrences(found).num_tracks) == 5
+    assert count_accuracy(found.count, scene.true_count) >= 0.9
+    late = find_concurrences_over_frames(scene.rays[90:105], ConcurrenceOptions(floor_below_eyes=None))
+    assert np.asarray(late.locations)[..., 2][np.asarray(late.valid)].min() < -2.0  # what the rule removes
 
 
 def test_party_four_groups_then_one():

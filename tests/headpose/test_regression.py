@@ -17,7 +17,12 @@ from jaxgaze.gp.exact import fit, predict
 from jaxgaze.gp.posterior import sample_hyperparameter_posterior
 from jaxgaze.nuts import mixing_result
 from jaxgaze.results import RESULTS, FitError
-from jaxgaze.headpose.regression import fit_gaze_regression, fit_gaze_regression_nn
+from jaxgaze.headpose.regression import (
+    RescaledRegression,
+    fit_gaze_regression,
+    fit_gaze_regression_nn,
+    training_image_scale,
+)
 from jaxgaze.headpose.features import head_pose_features
 from tests import helpers as zoo
 
@@ -101,9 +106,30 @@ def test_regression_rejects_bad_training_data(sessions, bad, message):
 def test_regression_predict_rejects_wrong_feature_count(sessions):
     s = sessions[0]
     X = head_pose_features(s.head_pose)[:60]
-    model = fit_gaze_regression(X, s.gaze_direction_image[:60], s.target_depth_image[:60], key=jax.random.key(0))
+    model = fit_gaze_regression(X, s.gaze_direction_image[:60], s.target_depth_image[:60], key=jax.random.key(0),
+                                image_size=(320, 240))
     with pytest.raises(ValueError, match=r"shape \(T, 3\)"):
         model.predict(np.zeros((4, 6)))
+    # The model keeps its training images' size; on images twice as tall f2 (a row) doubles, its
+    # variance quadruples, and f1 (an angle) stays.
+    assert model.image_size == (320, 240)
+    assert training_image_scale(model, (640, 480)) == 2.0 and training_image_scale(model, (320, 120)) == 0.5
+    assert training_image_scale(model._replace(image_size=None), (640, 480)) == 1.0  # unknown: as it is
+    twice = RescaledRegression(model, 2.0)
+    assert twice.image_size == (640, 480) and RescaledRegression(model._replace(image_size=None)).image_size is None
+    a, b = RescaledRegression(model, 1.0).predict(X[:7]), twice.predict(X[:7])  # one compilation (float64)
+    np.testing.assert_allclose(b.depth, 2 * np.asarray(a.depth), rtol=1e-5)
+    np.testing.assert_allclose(b.depth_variance, 4 * np.asarray(a.depth_variance), rtol=1e-4)
+    np.testing.assert_allclose(b.direction, np.asarray(a.direction), rtol=1e-5)
+
+
+@pytest.mark.parametrize("size", [(320,), (320.0, 240), (0, 240), (True, 240), "320x240", (320, -1)])
+def test_regression_rejects_a_bad_image_size(sessions, size):
+    s = sessions[0]
+    args = (head_pose_features(s.head_pose)[:20], s.gaze_direction_image[:20], s.target_depth_image[:20])
+    for fit_model in (fit_gaze_regression, fit_gaze_regression_nn):
+        with pytest.raises(ValueError, match="image_size must be \\(width, height\\)"):
+            fit_model(*args, key=jax.random.key(0), image_size=size)
 
 
 # ---------------------------------------------------------------------------

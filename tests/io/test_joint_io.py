@@ -8,7 +8,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from jaxgaze.io.joint import JOINT_FRAME_COLUMNS, joint_frame_columns, write_joint_frames, write_joint_netcdf
+from jaxgaze.io.joint import (JOINT_FRAME_COLUMNS, joint_frame_columns, read_speech, write_joint_frames,
+                              write_joint_netcdf)
+from jaxgaze.io.speech import SpeechFileError, read_rttm
+
+DATA = os.path.join(os.path.dirname(os.path.dirname(__file__)), "data")
 
 PEOPLE = ("ann", "ben", "cat lee")
 CANDIDATES = PEOPLE + ("concurrence 0", "elsewhere")
@@ -152,3 +156,22 @@ def test_netcdf_atomic(tmp_path):
     with pytest.raises(_Boom):
         write_joint_netcdf(path, SimpleNamespace(idata=Broken()))
     assert os.listdir(tmp_path) == []
+
+
+def test_read_speech_refuses_several_recordings_as_read_rttm_does(tmp_path):
+    """AMI-style RTTM of 3 recordings: one error, whatever the extension, and file_id selects one."""
+    ami = os.path.join(DATA, "ami_style_three_recordings.rttm")
+    copy = tmp_path / "speech.txt"  # read as RTTM by its SPEAKER lines
+    copy.write_text(open(ami).read())
+    with pytest.raises(SpeechFileError) as direct:
+        read_rttm(ami)
+    for path in (ami, copy):
+        with pytest.raises(SpeechFileError) as info:
+            read_speech(path)
+        assert info.value.what == direct.value.what and info.value.line == 6
+    segments = read_speech(copy, file_id="IS1008a")
+    assert segments.speaker == ("FIE038", "MIE080", "FIE038")
+    csv_path = tmp_path / "speech.csv"
+    csv_path.write_text("start,end,speaker\n0,1,A\n")
+    with pytest.raises(SpeechFileError, match=r"a file id \(--speech-file-id\) is only for RTTM speech files"):
+        read_speech(csv_path, file_id="IS1008a")

@@ -111,17 +111,46 @@ def test_nn_round_trip(tmp_path, x64):
         loss = jnp.asarray([0.5, 0.3, np.inf])
         return MLPFit(params, s, 1, 2, True, loss, loss, jnp.arange(8), jnp.arange(8, 10))
 
-    model = NNGazeRegression(net(jax.random.key(0)), net(jax.random.key(1)))
+    model = NNGazeRegression(net(jax.random.key(0)), net(jax.random.key(1)), (64, 48))
     path = tmp_path / "nn.json"
     save_gaze_regression(path, model, metadata={"note": "baseline"})
     loaded = load_gaze_regression(path)
-    assert isinstance(loaded, NNGazeRegression)
+    assert isinstance(loaded, NNGazeRegression) and loaded.image_size == (64, 48)
     X = rng.normal(size=(20, 3))
     _assert_same_prediction(model, loaded, X, 1e-12)
     assert loaded.direction_net.stopped_early and loaded.direction_net.best_epoch == 1
     assert np.isinf(np.asarray(loaded.depth_net.train_loss)[-1])
     np.testing.assert_array_equal(np.asarray(loaded.depth_net.validation_indices), [8, 9])
-    assert read_model_metadata(path) == {"note": "baseline"}
+    assert read_model_metadata(path) == {"note": "baseline", "image_size": [64, 48]}
+
+
+def test_the_training_image_size_is_kept_in_the_metadata(tmp_path, x64):
+    """The regression's ``image_size`` is written as ``metadata.image_size`` and read back from it;
+    a file without it (written by hand, or by other code) loads with the size unknown."""
+    model, _ = _regression()
+    path = tmp_path / "gp.json"
+    save_gaze_regression(path, model._replace(image_size=(320, 240)), metadata={"focal_px": 300.0})
+    doc = json.loads(path.read_text())
+    assert doc["metadata"] == {"focal_px": 300.0, "image_size": [320, 240]}
+    loaded, metadata = load_gaze_regression(path, with_metadata=True)
+    assert loaded.image_size == (320, 240) and metadata["image_size"] == [320, 240]
+    for size, expected in (([640, 480], (640, 480)), (None, None)):
+        doc["metadata"]["image_size"] = size
+        path.write_text(json.dumps(doc))
+        assert load_gaze_regression(path).image_size == expected
+    del doc["metadata"]["image_size"]
+    path.write_text(json.dumps(doc))
+    assert load_gaze_regression(path).image_size is None
+    doc["metadata"]["image_size"] = [640, "480"]
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ModelFileError, match=r"gp.json: model metadata 'image_size' must be \[width, height\]"):
+        load_gaze_regression(path)
+    other = tmp_path / "other.json"
+    with pytest.raises(ValueError, match=r"metadata image_size \[640, 480\] differs .* \[320, 240\]"):
+        save_gaze_regression(other, model._replace(image_size=(320, 240)), metadata={"image_size": [640, 480]})
+    assert not other.exists()
+    save_gaze_regression(other, model._replace(image_size=(320, 240)), metadata={"image_size": [320, 240]})
+    assert load_gaze_regression(other).image_size == (320, 240)
 
 
 def test_kernel_json_round_trip_and_registry(x64):

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from jaxgaze.bias.speech import SpeechSegments, speaking_flags
+from jaxgaze.io.gaze import read_gaze
 from jaxgaze.io.openface import R_OPENFACE_MODEL_FROM_HEAD, OpenFaceFileError, read_openface
 from jaxgaze.io.speech import SpeechFileError, read_rttm, read_segments_csv
 from jaxgaze.geometry import axis_angle_to_rotation_matrix, yaw_pitch_to_direction
@@ -281,7 +282,7 @@ def test_openface_nan_in_a_dropped_frame_is_ignored(tmp_path):
         ([{"pose_Rx": "inf"}], r"column 'pose_Rx' is not finite in a kept frame", 2),
         ([{}, {"confidence": "nan"}], r"column 'confidence' is not finite", 3),
         ([{"frame": 1}, {"frame": 2}, {"frame": 1}], r"duplicate frame 1 of face_id 0 \(first on line 2\)", 4),
-        ([{"frame": 1.5}], r"column 'frame' must be an integer", 2),
+        ([{"frame": 1.5}], r"column 'frame' must be a 64-bit integer", 2),
         ([{"success": 2}], r"success must be 0 or 1", 2),
         ([{"gaze_angle_x": 1.6}], r"'gaze_angle_x' = 1.6 is outside", 2),
     ],
@@ -318,6 +319,75 @@ def test_openface_file_errors(tmp_path, text, message, line):
     assert str(info.value).startswith(f"{path}, line {line}: ")
 
 
+@pytest.mark.parametrize(
+    "name, missing, flags",
+    [
+        ("openface_pose_aus.csv", "'gaze_angle_x', 'gaze_angle_y'", "-gaze (it writes gaze_0_x … gaze_angle_y)"),
+        ("openface_gaze_2dfp.csv", "'pose_Tx', 'pose_Ty', 'pose_Tz', 'pose_Rx', 'pose_Ry', 'pose_Rz'",
+         "-pose (it writes pose_Tx … pose_Rz)"),
+    ],
+)
+def test_openface_written_without_gaze_or_pose_names_the_flag(name, missing, flags):
+    """Genuine FeatureExtraction output (-pose -aus; -gaze -2Dfp, with its eye landmarks): the error names
+    the missing columns and the flag that writes them, and does not ask whether it is OpenFace's."""
+    path = DATA / name
+    for reader in (read_openface, read_gaze):  # read_gaze recognises the header as OpenFace's
+        with pytest.raises(OpenFaceFileError) as info:
+            reader(path)
+        assert str(info.value) == (f"{path}, line 1: missing columns {missing} in the header (this OpenFace output "
+                                   f"was written without them: run FeatureExtraction with {flags}, or with no output "
+                                   "flag at all for every column)")
+    assert "is this" not in str(info.value)
+
+
+def test_openface_hint_for_a_file_that_is_not_openface(tmp_path):
+    path = tmp_path / "other.csv"
+    path.write_text("frame,yaw,tilt\n1,0,0\n")
+    with pytest.raises(OpenFaceFileError, match=r"missing columns 'timestamp', .*\(is this an OpenFace 2 "
+                       r"FeatureExtraction CSV\?\)$"):
+        read_openface(path)
+
+
+def test_openface_truncated_last_row_is_dropped_with_a_warning(tmp_path):
+    """A recording cut off mid-write: the last of 5 rows stops after 145 of 299 fields, with no newline."""
+    path = DATA / "openface_gaze_pose_cut.csv"
+    with pytest.warns(UserWarning) as record:
+        track = read_openface(path)
+    (message,) = [str(w.message) for w in record]
+    assert message == (f"{path}: dropped the last row: line 6 is cut off (145 of 299 fields and no newline at the "
+                       "end of the file); read the 4 complete row(s) before it")
+    np.testing.assert_array_equal(track.frame, [1, 2, 3, 4])
+    text = path.read_text()
+    complete = tmp_path / "complete.csv"
+    complete.write_text(text[: text.rindex("\n") + 1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        expected = read_openface(complete)
+    for a, b in zip(track[:-1], expected[:-1]):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(track.head_position_camera[:, 0], 0.512)  # pose_Tz 512 mm
+
+
+@pytest.mark.parametrize(
+    "cut, message, line",
+    [
+        (lambda t: t.replace("\n2, 0", "\n2, 0, 0.0\n9, 0", 1), "expected 14 fields as in the header, got 3", 3),
+        (lambda t: t[: t.rindex(",")] + "\n", "expected 14 fields as in the header, got 13", 4),
+        (lambda t: t[: t.index(",", t.index("\n"))], "no data rows after the header: line 2 is cut off (1 of 14 "
+         "fields and no newline at the end of the file)", 1),
+    ],
+)
+def test_openface_short_rows_that_are_not_a_cut_off_end_stay_errors(tmp_path, cut, message, line):
+    """A short row in the middle, or a short last row that ends in a newline, is an error; a cut-off
+    only row leaves no data."""
+    text = _openface_csv(tmp_path, [{}, {}, {}]).read_text()
+    path = tmp_path / "short.csv"
+    path.write_text(cut(text))
+    with pytest.raises(OpenFaceFileError) as info:
+        read_openface(path)
+    assert str(info.value) == f"{path}, line {line}: {message}"
+
+
 def test_openface_missing_file_and_bad_min_confidence(tmp_path):
     with pytest.raises(OpenFaceFileError, match="file not found"):
         read_openface(tmp_path / "nope.csv")
@@ -334,16 +404,67 @@ FLAGS_B = [0, 0, 0, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0]  # [0.3, 0.7): 0.3 in, 0
 FLAGS_C = [1] * 10 + [0] * 5  # file "other": [0, 1.0)
 
 
-def test_read_rttm_keeps_all_files_and_merges_same_speaker_overlap():
-    expected = r"merged 1 overlapping segment\(s\) of the same speaker: 'A' line 9 overlaps line 8"
+def _both_recordings():
+    """meeting1 and other of tests/data/speech_segments.rttm as one list of segments (for the flag tests)."""
+    with pytest.warns(UserWarning, match="merged"):
+        meeting = read_rttm(RTTM, file_id="meeting1")
+    other = read_rttm(RTTM, file_id="other")
+    return SpeechSegments(np.concatenate([meeting.start, other.start]), np.concatenate([meeting.end, other.end]),
+                          meeting.speaker + other.speaker)
+
+
+def test_read_rttm_merges_same_speaker_overlap_within_a_recording():
+    expected = r"merged 1 overlapping segment\(s\) of the same speaker: 'A' line 9 overlaps line 8$"
     with pytest.warns(UserWarning, match=expected):
-        segments = read_rttm(RTTM)
+        segments = read_rttm(RTTM, file_id="meeting1")
     assert isinstance(segments, SpeechSegments)
-    np.testing.assert_allclose(segments.start, [0.0, 0.0, 0.3, 1.0])
-    np.testing.assert_allclose(segments.end, [0.35, 1.0, 0.7, 1.4])
-    assert segments.speaker == ("A", "C", "B", "A")
-    assert segments.speakers == ("A", "B", "C")
-    assert segments.end[3] == 1.4  # 1.1 + 0.3 rounded to 1 ns: exactly the decimal 1.4
+    np.testing.assert_allclose(segments.start, [0.0, 0.3, 1.0])
+    np.testing.assert_allclose(segments.end, [0.35, 0.7, 1.4])
+    assert segments.speaker == ("A", "B", "A")
+    assert segments.end[2] == 1.4  # 1.1 + 0.3 rounded to 1 ns: exactly the decimal 1.4
+
+
+def test_read_rttm_of_several_recordings_needs_a_file_id():
+    """AMI's dev.rttm holds 18 recordings whose speaker names repeat: without file_id they must not be
+    put on one timeline (the fixture: 3 recordings in AMI's format, FEE041 speaking in two of them)."""
+    ami = DATA / "ami_style_three_recordings.rttm"
+    with pytest.raises(SpeechFileError) as info:
+        read_rttm(ami)
+    assert str(info.value) == (f"{ami}, line 6: a second recording 'ES2011b' starts here: the RTTM holds 3 "
+                               "recordings (file ids ES2011a, ES2011b, IS1008a) on separate clocks; choose one "
+                               "(file_id, --speech-file-id)")
+    with pytest.raises(SpeechFileError, match=r"line 10: a second recording 'other'"):
+        read_rttm(RTTM)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # one recording: nothing of the others merged into it
+        segments = read_rttm(ami, file_id="ES2011b")
+    np.testing.assert_allclose(segments.start, [0.72, 2.15, 4.4, 5.61])
+    np.testing.assert_allclose(segments.end, [3.78, 3.35, 5.35, 7.63])
+    assert segments.speaker == ("FEE041", "MEE044", "MEO069", "FEE041")
+
+
+def test_read_rttm_lists_the_first_few_of_many_recordings(tmp_path):
+    path = tmp_path / "set.rttm"
+    path.write_text("".join(f"SPEAKER rec{k:02d} 1 0.0 1.0 <NA> <NA> A <NA> <NA>\n" for k in range(40)))
+    with pytest.raises(SpeechFileError) as info:
+        read_rttm(path)
+    assert "40 recordings (file ids rec00, rec01, rec02, rec03, rec04 … and 35 more)" in str(info.value)
+    assert len(info.value.what) < 200
+    with pytest.raises(SpeechFileError) as info:
+        read_rttm(path, file_id="x")
+    assert "(files present: rec00, rec01, rec02, rec03, rec04 … and 35 more)" in str(info.value)
+
+
+def test_read_rttm_warning_of_many_overlaps_stays_short(tmp_path):
+    path = tmp_path / "overlaps.rttm"
+    path.write_text("".join(f"SPEAKER f 1 {k}.0 1.5 <NA> <NA> A <NA> <NA>\n" for k in range(1001)))
+    with pytest.warns(UserWarning) as record:
+        segments = read_rttm(path)
+    (message,) = [str(w.message) for w in record]
+    assert message.startswith(f"{path}: merged 1000 overlapping segment(s) of the same speaker: 'A' line 2 overlaps "
+                              "line 1; 'A' line 3 overlaps line 1; 'A' line 4 overlaps line 1 … and 997 more")
+    assert len(message) - len(str(path)) < 300
+    np.testing.assert_allclose([segments.start[0], segments.end[0]], [0.0, 1001.5])
 
 
 def test_read_rttm_file_id_filter():
@@ -369,8 +490,7 @@ def test_read_segments_csv_matches_rttm():
 
 
 def test_speaking_flags_known_values_fps_10():
-    with pytest.warns(UserWarning, match="merged"):
-        segments = read_rttm(RTTM)
+    segments = _both_recordings()
     # A and B both speak at frame 3 (0.3 s) only.
     with pytest.warns(UserWarning, match=r"1 of 15 frames have two or more of the speakers speaking at once"):
         flags = speaking_flags(segments, ["A", "B"], 15, 10)
@@ -383,8 +503,7 @@ def test_speaking_flags_known_values_fps_10():
 
 
 def test_speaking_flags_overlap_counts_only_requested_speakers():
-    with pytest.warns(UserWarning, match="merged"):
-        segments = read_rttm(RTTM)
+    segments = _both_recordings()
     # A and C overlap on frames 0-3 only (B is not asked for).
     with pytest.warns(UserWarning, match=r"4 of 15 frames"):
         speaking_flags(segments, ["C", "A"], 15, 10)

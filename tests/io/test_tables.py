@@ -18,6 +18,7 @@ from jaxgaze.io.concurrences import OUTPUT_COLUMNS, write_concurrences_csv
 from jaxgaze.io.models import ModelFileError, metadata_image_size, metadata_number
 from jaxgaze.io.poses import (CAMERA_POSE_COLUMNS, PoseFileError, read_camera_poses_csv, read_poses,
                               write_camera_poses_csv)
+from jaxgaze.io.speech import read_segments_csv
 from jaxgaze.io.rays import CSV_COLUMNS, read_rays_csv, stack_rays, write_rays_csv
 from jaxgaze.io.text import InputFileError, read_csv_table
 from jaxgaze.poses import CameraPoses
@@ -80,6 +81,7 @@ def test_csv_table_file_errors_name_path_and_line(tmp_path, text, kwargs, messag
         ("1,x", lambda r: r.number("b"), "column 'b' is not a number: 'x'"),
         ("1,inf", lambda r: r.number("b"), "column 'b' is not finite: 'inf'"),
         ("1.5,2", lambda r: r.integer("a"), "column 'a' must be an integer, got '1.5'"),
+        ("1e19,2", lambda r: r.integer("a"), "column 'a' is out of range for a 64-bit integer: '1e19'"),
     ],
 )
 def test_csv_row_errors_name_column_path_and_line(tmp_path, cells, call, message):
@@ -93,6 +95,44 @@ def test_csv_row_errors_name_column_path_and_line(tmp_path, cells, call, message
 def test_csv_row_number_may_allow_nan_and_inf(tmp_path):
     row = read_csv_table(_write(tmp_path / "t.csv", "a,b\nnan,-inf\n"), ("a", "b")).rows[0]
     assert np.isnan(row.number("a", finite=False)) and row.number("b", finite=False) == -np.inf
+
+
+def test_csv_table_drops_a_last_row_cut_off_mid_write(tmp_path):
+    """Only a last line with too few fields AND no newline at the end is a cut-off recording."""
+    path = _write(tmp_path / "t.csv", "a,b,c\n1,2,3\n\n4,5,6\n7,8")
+    with pytest.warns(UserWarning) as record:
+        table = read_csv_table(path, ("a", "b"))
+    assert [str(w.message) for w in record] == [
+        f"{path}: dropped the last row: line 5 is cut off (2 of 3 fields and no newline at the end of the file); "
+        "read the 2 complete row(s) before it"]
+    assert [row.line for row in table.rows] == [2, 4]
+    assert [row.cells for row in table.rows] == [["1", "2", "3"], ["4", "5", "6"]]
+
+
+@pytest.mark.parametrize(
+    "text, message, line",
+    [
+        ("a,b,c\n1,2,3\n7,8\n", "expected 3 fields as in the header, got 2", 3),  # ends in a newline
+        ("a,b,c\n1,2\n7,8,9", "expected 3 fields as in the header, got 2", 2),  # short in the middle
+        ("a,b,c\n1,2,3\n7,8,9,10", "expected 3 fields as in the header, got 4", 3),  # too long is not cut off
+        ("a,b,c\n7,8", "no data rows after the header: line 2 is cut off (2 of 3 fields and no newline at the end "
+         "of the file)", 1),
+    ],
+)
+def test_csv_table_short_rows_that_are_not_cut_off_stay_errors(tmp_path, text, message, line):
+    path = _write(tmp_path / "t.csv", text)
+    with pytest.raises(InputFileError) as info:
+        read_csv_table(path, ("a", "b"))
+    assert str(info.value) == f"{path}, line {line}: {message}"
+
+
+def test_every_csv_reader_drops_a_cut_off_last_row(tmp_path):
+    """The speech segments CSV (one of the readers built on read_csv_table) keeps the complete rows."""
+    path = _write(tmp_path / "speech.csv", "start,end,speaker\n0.0,1.0,A\n1.5,2.0,B\n2.5,")
+    with pytest.warns(UserWarning, match=r"line 4 is cut off \(2 of 3 fields"):
+        segments = read_segments_csv(path)
+    np.testing.assert_array_equal(segments.start, [0.0, 1.5])
+    assert segments.speaker == ("A", "B")
 
 
 def test_csv_table_missing_file_uses_the_error_type_and_name(tmp_path):
@@ -158,16 +198,21 @@ def test_rays_writer_is_atomic(tmp_path, monkeypatch):
 def test_concurrences_csv_writes_the_valid_modes(tmp_path):
     cov = np.zeros((2, 2, 3, 3), np.float32)
     cov[..., [0, 1, 2], [0, 1, 2]] = [1e-3, 2e-3, 3e-3]
+    cov[1, 1, 0, 1] = cov[1, 1, 1, 0] = 5e-4
     result = SimpleNamespace(valid=np.array([[True, False], [False, True]]),
                              locations=np.arange(12, dtype=np.float32).reshape(2, 2, 3) / 10, covariances=cov,
+                             degrees_of_freedom=np.array([[4.0, 0], [0, 6.0]]),
                              num_rays=np.array([[2, 0], [0, 3]]), field_values=np.array([[0.5, 0], [0, 0.25]]))
+    tracks = SimpleNamespace(track_ids=np.array([[0, -1], [-1, 3]]))
     path = tmp_path / "c.csv"
-    assert write_concurrences_csv(path, [7, 9], result) == 2
+    assert write_concurrences_csv(path, [7, 9], result, tracks) == 2
     with open(path, newline="") as handle:
         rows = list(csv.reader(handle))
     assert tuple(rows[0]) == OUTPUT_COLUMNS
-    assert rows[1] == ["7", "0", "0.0", "0.1", "0.2", "0.001", "0.002", "0.003", "2", "0.5"]
-    assert rows[2][:2] == ["9", "1"] and [float(x) for x in rows[2][2:5]] == pytest.approx([0.9, 1.0, 1.1])
+    assert rows[1] == ["7", "0", "0", "0.0", "0.1", "0.2", "0.001", "0.002", "0.003", "0.0", "0.0", "0.0", "4.0", "2",
+                       "0.5"]
+    assert rows[2][:3] == ["9", "1", "3"] and [float(x) for x in rows[2][3:6]] == pytest.approx([0.9, 1.0, 1.1])
+    assert float(rows[2][9]) == pytest.approx(5e-4)  # cov_xy
 
 
 # ---------------------------------------------------------------------------

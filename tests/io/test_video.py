@@ -11,10 +11,12 @@ from jaxgaze.simulate.video import render_tabletop_video
 from jaxgaze.io.video import (
     VIDEO_CODECS,
     VideoFileError,
+    check_frames_output,
     frame_count,
     iter_frames,
     read_frames,
     video_fps,
+    write_frames,
     write_video,
 )
 from tests import helpers as zoo
@@ -75,6 +77,50 @@ def test_write_video_errors_leave_nothing_behind(tmp_path):
         write_video(tmp_path / "missing" / "v.mp4", _frames(2), 10)
     assert path.read_bytes() == b"old"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"]
+
+
+def test_write_frames_to_a_png_folder_or_a_video(tmp_path):
+    frames = _frames(12)  # frame_000010.png after frame_000009.png: read back in order, losslessly
+    assert write_frames(tmp_path / "out", frames, 10) == 12
+    assert sorted(p.name for p in (tmp_path / "out").iterdir())[:2] == ["frame_000000.png", "frame_000001.png"]
+    back = read_frames(tmp_path / "out")
+    assert len(back) == 12 and all(np.array_equal(a, b) for a, b in zip(back, frames))
+    (tmp_path / "empty").mkdir()  # an empty folder is filled; grey and float frames become RGB uint8
+    assert write_frames(tmp_path / "empty", [np.full((8, 10), 0.5)] * 2, 10) == 2
+    assert np.all(read_frames(tmp_path / "empty")[0] == 128)
+    assert write_frames(tmp_path / "v.mkv", iter(frames), 12.5) == 12  # by extension: write_video
+    assert video_fps(tmp_path / "v.mkv") == pytest.approx(12.5) and len(read_frames(tmp_path / "v.mkv")) == 12
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty", "out", "v.mkv"]  # no temporary file left
+
+
+def test_write_frames_checks_first_and_leaves_nothing_behind(tmp_path):
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "keep.txt").write_text("x")
+    (tmp_path / "file").write_text("x")
+    for path, message in [(tmp_path / "v.mov", r"'.mov' is not a video extension"),
+                          (tmp_path / "full", "exists and is not an empty folder"),
+                          (tmp_path / "file", "exists and is not an empty folder"),
+                          (tmp_path / "missing" / "out", "does not exist")]:
+        with pytest.raises(ValueError, match=message):
+            check_frames_output(path)
+        with pytest.raises(ValueError, match=message):
+            write_frames(path, _frames(2), 10)
+
+    def failing(after, error):
+        yield from _frames(after)
+        raise error
+
+    for error in (ValueError("bad frame"), KeyboardInterrupt()):
+        with pytest.raises(type(error)):
+            write_frames(tmp_path / "out", failing(3, error), 10)
+        with pytest.raises(type(error)):
+            write_frames(tmp_path / "v.avi", failing(3, error), 10)
+    with pytest.raises(ValueError, match=r"frames\[1\] is 32x24 px but frames\[0\] is 64x48 px"):
+        write_frames(tmp_path / "out", [_frames(1)[0], _frames(1, (32, 24))[0]], 10)
+    with pytest.raises(ValueError, match="no frames"):
+        write_frames(tmp_path / "out", [], 10)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "full"]
+    assert [p.name for p in (tmp_path / "full").iterdir()] == ["keep.txt"]
 
 
 def test_folder_is_read_in_natural_order(tmp_path):

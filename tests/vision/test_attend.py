@@ -13,10 +13,13 @@ from jaxgaze.headpose.regression import fit_gaze_regression
 from jaxgaze.headpose.features import head_pose_features
 from jaxgaze.vision import tracker
 from jaxgaze.vision.attend import (
+    OVERLAY_COLOURS,
     Attention,
     AttentionWindows,
     attend_frames,
     attend_window,
+    attention_overlay,
+    draw_attention,
     target_point_covariance,
 )
 from jaxgaze.papers.yucel2013_attention import attend_session
@@ -168,7 +171,7 @@ def table_top():
     X = np.concatenate([np.asarray(head_pose_features(s.head_pose)) for s in sessions[2:]])[train]
     f1 = np.concatenate([np.asarray(s.gaze_direction_image) for s in sessions[2:]])[train]
     f2 = np.concatenate([np.asarray(s.target_depth_image) for s in sessions[2:]])[train]
-    model = fit_gaze_regression(X, f1, f2, key=jax.random.key(1))
+    model = fit_gaze_regression(X, f1, f2, key=jax.random.key(1), image_size=(W, H))
     scenes = [zoo.tabletop_scene((0, 2, 2, 20.0), i, 10 + i) for i in range(len(sessions))]
     return sessions, model, scenes
 
@@ -235,6 +238,7 @@ def test_attend_frames_on_a_rendered_video_attends_objects(table_top):
                         ("probability", (n,)), ("valid", (n,)), ("head_xy", (n, 2))]:
         assert getattr(out, name).shape == shape, name
     np.testing.assert_array_equal(out.start_frame, [0, 4, 8, 12, 16])
+    assert out.window == 4 and out.image_scale == 1.0  # the frames are the training images' size
     assert out.valid.all() and out.reason == ("",) * n and np.all(np.isfinite(out.attended_xy))
     assert np.all((out.probability > 0) & (out.probability <= 1))
     # the tracked pose and the head centre agree with the simulation's
@@ -278,6 +282,79 @@ def test_attend_frames_flags_lost_and_flat_windows(table_top, monkeypatch):
     # windows with the same pose and picture give the same answer, whatever was lost in between
     np.testing.assert_allclose(out.attended_xy[0], out.attended_xy[3])
     np.testing.assert_allclose(out.pose[0], [-0.4, 0.1, 0.0])
+
+
+def test_attend_frames_scales_the_regression_rows_to_the_frames_size(table_top, monkeypatch):
+    """``f2`` is a row of the 320 x 240 training images (Yücel et al. 2013, Sec. V): on the same scene
+    at twice the size, seen with twice the focal length, rows, head centres and target points
+    double and ``f1`` stays; another aspect ratio or an unknown training size is said."""
+    _, model, scenes = table_top
+    T = 20  # as the video above: one compiled prediction
+    pose, translation = np.tile([[-0.4, 0.1, 0.0]], (T, 1)), np.tile([[0.0, -0.25, 1.5]], (T, 1))
+    monkeypatch.setattr(tracker, "track_head", lambda frames, **kw: (list(frames), _fake_track(pose, translation))[1])
+    image = scenes[0].image
+    small = attend_frames([image] * T, model, focal_px=300.0, window=4)
+    big = attend_frames([np.repeat(np.repeat(image, 2, 0), 2, 1)] * T, model, focal_px=600.0, window=4)
+    assert small.image_scale == 1.0 and big.image_scale == 2.0 and small.valid.all()
+    np.testing.assert_allclose(big.depth_y, 2 * small.depth_y, rtol=1e-5)
+    np.testing.assert_allclose(big.direction, small.direction, atol=1e-5)
+    np.testing.assert_allclose(big.head_xy, 2 * small.head_xy, rtol=1e-9)
+    np.testing.assert_allclose(big.target_xy, 2 * small.target_xy, rtol=1e-4)
+    wide = np.repeat(image, 2, 1)  # 640 x 240: the rows keep their scale
+    with pytest.warns(UserWarning, match=r"640x240 px .* 320x240 px images \(another aspect ratio\)"):
+        out = attend_frames([wide] * T, model, focal_px=300.0, window=4)
+    assert out.image_scale == 1.0
+    np.testing.assert_allclose(out.depth_y, small.depth_y, rtol=1e-6)
+    with pytest.warns(UserWarning, match="does not know the size of its training images"):
+        out = attend_frames([image] * T, model._replace(image_size=None), focal_px=300.0, window=4)
+    np.testing.assert_allclose(out.depth_y, small.depth_y, rtol=1e-6)
+
+
+def _one_window(attended, region, head, target, window=3, reason=""):
+    row = lambda v: np.asarray([v], np.float64)  # noqa: E731
+    return AttentionWindows(np.array([0]), np.zeros((1, 3)), row(1.0), row(target[1]), row(target), row(attended),
+                            row(region), row(0.7), np.array([reason == ""]), row(head), (reason,), window, 1.0)
+
+
+def test_draw_attention_puts_each_marker_at_its_place():
+    image = np.full((60, 80, 3), 128, np.uint8)
+    windows = _one_window(attended=(40.5, 30.5), region=(30.0, 22.0, 52.0, 40.0), head=(12.5, 8.5),
+                          target=(44.5, 50.5))
+    out = draw_attention(image, windows, 0)
+    assert out.shape == image.shape and out.dtype == np.uint8 and np.all(image == 128)  # a copy
+
+    def where(name):
+        return np.argwhere(np.all(out == OVERLAY_COLOURS[name], -1))  # (row, col)
+
+    red = where("attended")  # a disc of radius 4 around the pixel centred at (40.5, 30.5)
+    np.testing.assert_allclose(red.mean(0) + 0.5, [30.5, 40.5], atol=1e-9)
+    assert len(red) > 40 and np.abs(red - [30, 40]).max() == 4
+    blue = where("head")
+    np.testing.assert_allclose(blue.mean(0) + 0.5, [8.5, 12.5], atol=1e-9)
+    # the box outlines pixel columns 30 … 51 and rows 22 … 39; the red disc covers part of no edge
+    green = where("region")
+    assert green[:, 1].min() == 30 and green[:, 1].max() == 51 and green[:, 0].min() == 22 and green[:, 0].max() == 39
+    assert np.all(out[22, 30:52] == OVERLAY_COLOURS["region"]) and np.all(out[22:40, 51] == OVERLAY_COLOURS["region"])
+    # the target's cross is centred on its pixel (44, 50), with the gaze line from the head
+    assert np.all(out[50, 39:50] == OVERLAY_COLOURS["target"]) and np.all(out[45:56, 44] == OVERLAY_COLOURS["target"])
+    # grey and float frames come out RGB uint8; a lost window draws nothing
+    lost = _one_window((np.nan,) * 2, (np.nan,) * 4, (np.nan,) * 2, (np.nan,) * 2, reason="tracker lost")
+    np.testing.assert_array_equal(draw_attention(np.full((60, 80), 0.5), lost, 0), np.full((60, 80, 3), 128))
+
+
+def test_attention_overlay_draws_each_window_on_its_frames():
+    frames = [np.full((40, 50, 3), 10 * t, np.uint8) for t in range(8)]  # 2 windows of 3, 2 frames left over
+    windows = _one_window((10.5, 10.5), (5.0, 5.0, 20.0, 20.0), (2.5, 2.5), (30.5, 30.5))
+    windows = windows._replace(start_frame=np.array([0, 3]), **{k: np.concatenate([getattr(windows, k)] * 2)
+                                                                for k in ("attended_xy", "region_box", "head_xy",
+                                                                          "target_xy")})
+    windows = windows._replace(attended_xy=np.array([[10.5, 10.5], [25.5, 15.5]]))
+    out = list(attention_overlay(iter(frames), windows))
+    assert len(out) == 6
+    for t, frame in enumerate(out):
+        assert frame[35, 45, 0] == 10 * t  # the frame itself
+        x, y = windows.attended_xy[t // 3]
+        assert tuple(frame[int(y), int(x)]) == OVERLAY_COLOURS["attended"]
 
 
 # ---------------------------------------------------------------------------

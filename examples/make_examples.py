@@ -1,0 +1,181 @@
+"""Write the example inputs of every ``jaxgaze`` command (see README.md here), from the simulators.
+
+    python examples/make_examples.py            # rewrites the files next to this script
+
+Every file comes from :mod:`jaxgaze.simulate` with a fixed key, so the output is the same on
+every run; the readers' formats are written by :mod:`jaxgaze.io` where it has a writer (rays,
+poses) and here otherwise (gaze CSV, OpenFace 2 CSV, RTTM, segments CSV). World frame: +z up,
+metres; camera frame (ours): +x forward, +y left, +z up; angles in radians. The simulators'
+truth goes to ``truth.json`` (what a good answer is near).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import pathlib
+
+import jax
+import numpy as np
+
+from jaxgaze.geometry import R_OURS_FROM_OPENCV
+from jaxgaze.io.openface import R_OPENFACE_MODEL_FROM_HEAD
+from jaxgaze.io.poses import write_colmap_images, write_pose_csv
+from jaxgaze.io.rays import RayRecording, write_rays_csv
+from jaxgaze.poses import CameraPoses, matrices_to_quaternions
+from jaxgaze.simulate import simulate_calibration_session, simulate_conversation, simulate_dyadic, simulate_scene
+
+HERE = pathlib.Path(__file__).resolve().parent
+GAZE_HEADER = ("frame", "timestamp", "yaw", "tilt", "qw", "qx", "qy", "qz", "ex", "ey", "ez")
+OPENFACE_HEADER = ("frame", "face_id", "timestamp", "confidence", "success", "gaze_angle_x", "gaze_angle_y",
+                   "pose_Tx", "pose_Ty", "pose_Tz", "pose_Rx", "pose_Ry", "pose_Rz", "AU01_r")
+
+
+def _g(x) -> str:
+    """7 significant digits: micrometres and microradians, a few KB less per file than full precision."""
+    return f"{float(x):.7g}"
+
+
+def _write_csv(path: pathlib.Path, header, rows) -> pathlib.Path:
+    with open(path, "w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle, lineterminator="\n")
+        writer.writerow(header)
+        writer.writerows(rows)
+    return path
+
+
+def _runs(flags) -> list[tuple[int, int]]:
+    """``[(start, end)]`` frame ranges of the True runs of a boolean array."""
+    padded = np.concatenate([[False], np.asarray(flags, bool), [False]])
+    edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+
+
+def _speech(directory: pathlib.Path, name: str, recording: str, speaking, speakers, fps: float) -> None:
+    """``speaking`` ``(P, T)`` as an RTTM (``name``.rttm) and a segments CSV (``name``_segments.csv)."""
+    lines, segments = [], []
+    for speaker, flags in zip(speakers, speaking):
+        for start, end in _runs(flags):
+            lines.append(f"SPEAKER {recording} 1 {start / fps:.3f} {(end - start) / fps:.3f} <NA> <NA> {speaker} "
+                         "<NA> <NA>")
+            segments.append([f"{start / fps:.3f}", f"{end / fps:.3f}", speaker])
+    (directory / f"{name}.rttm").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    _write_csv(directory / f"{name}_segments.csv", ("start", "end", "speaker"), sorted(segments, key=lambda s:
+                                                                                        float(s[0])))
+
+
+def concurrences(directory: pathlib.Path) -> dict:
+    """``rays.csv``: 30 frames (3 s) of the simulated meeting, all three phases of its story."""
+    scene = simulate_scene(jax.random.key(0), "meeting", num_frames=30)
+    people = [f"p{n:02d}" for n in range(scene.num_people)]
+    write_rays_csv(directory / "rays.csv", RayRecording(list(range(scene.num_frames)),
+                                                        [people] * scene.num_frames, scene.rays))
+    truth, valid = np.asarray(scene.concurrences, float), np.asarray(scene.concurrence_valid, bool)
+    return {"rays.csv": {"concurrences_m": {str(t): np.round(truth[t][valid[t]], 4).tolist()
+                                            for t in range(scene.num_frames)}}}
+
+
+def calibrate(directory: pathlib.Path) -> dict:
+    """Wearer A looks at B's head-mounted camera for 80 frames: both cameras' poses as pose CSVs and
+    as COLMAP ``images.txt``."""
+    session = simulate_calibration_session(jax.random.key(2), num_frames=80)
+    frames = np.asarray(session.frame_ids)
+    for name, R, centres in (("wearer_a", session.R_camera_from_world_a, session.centers_a),
+                             ("wearer_b", session.R_camera_from_world_b, session.centers_b)):
+        poses = CameraPoses(np.asarray(R, float), np.asarray(centres, float), frames)
+        write_pose_csv(directory / f"{name}.csv", poses)
+        write_colmap_images(directory / f"{name}_images.txt", poses)
+    return {"wearer_a": {"eye_center_m": np.round(np.asarray(session.eye_center_a, float), 5).tolist(),
+                         "direction": np.round(np.asarray(session.direction_a, float), 6).tolist()}}
+
+
+def _unit(v):
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _openface(rec, person: int, fps: float):
+    """Rows of an OpenFace 2 FeatureExtraction CSV of ``person`` filmed by a fixed camera 25 cm below
+    and 15 cm beside the partner's eyes, and the partner's eye midpoint in our camera frame."""
+    R_world_from_head = np.asarray(rec.R_world_from_head[person], float)
+    eye, target = np.asarray(rec.eye_positions[person], float), np.asarray(rec.target_positions[person], float)
+    yaw, tilt = np.asarray(rec.gaze_angles[person], float).T
+    side = _unit(np.cross([0.0, 0.0, 1.0], _unit(eye.mean(0) - target.mean(0))))
+    centre = target.mean(0) + np.array([0.0, 0.0, -0.25]) + 0.15 * side
+    forward = _unit(eye.mean(0) - centre)
+    left = _unit(np.cross([0.0, 0.0, 1.0], forward))
+    R_world_from_camera = np.stack([forward, left, np.cross(forward, left)], axis=1)
+    R_camera_from_head = R_world_from_camera.T @ R_world_from_head
+    gaze_head = np.stack([np.cos(tilt) * np.cos(yaw), np.cos(tilt) * np.sin(yaw), np.sin(tilt)], axis=-1)
+    gaze_cv = np.einsum("tij,tj->ti", R_camera_from_head, gaze_head) @ R_OURS_FROM_OPENCV  # OpenCV camera frame
+    # OpenFace's head pose: R = Rx(pose_Rx) Ry(pose_Ry) Rz(pose_Rz), head model -> OpenCV camera.
+    R_cv = R_OURS_FROM_OPENCV.T @ R_camera_from_head @ R_OPENFACE_MODEL_FROM_HEAD.T
+    rx = np.arctan2(-R_cv[:, 1, 2], R_cv[:, 2, 2])
+    ry = np.arcsin(np.clip(R_cv[:, 0, 2], -1.0, 1.0))
+    rz = np.arctan2(-R_cv[:, 0, 1], R_cv[:, 0, 0])
+    pose_t = ((eye - centre) @ R_world_from_camera) @ R_OURS_FROM_OPENCV * 1000.0  # millimetres, OpenCV frame
+    gx, gy = np.arctan2(gaze_cv[:, 0], -gaze_cv[:, 2]), np.arctan2(gaze_cv[:, 1], -gaze_cv[:, 2])
+    success = gaze_cv[:, 2] < -0.1  # eyes turned away from the camera: OpenFace loses them
+    rows = []
+    for t in range(len(eye)):
+        values = [gx[t], gy[t], *pose_t[t], rx[t], ry[t], rz[t]] if success[t] else [0.0] * 8
+        rows.append([t + 1, 0, f"{t / fps:.3f}", "0.98" if success[t] else "0.00", int(success[t]),
+                     *(f"{v:.6f}" for v in values), "0.25"])  # OpenFace counts frames from 1
+    return rows, (target - centre) @ R_world_from_camera
+
+
+def _gaze_rows(frames, fps, gaze, R_world_from_head, eyes, targets=None):
+    """Rows of our gaze CSV: frame, timestamp, yaw, tilt (head frame), R_world_from_head, eyes (and targets)."""
+    q = matrices_to_quaternions(np.asarray(R_world_from_head, float))
+    return [[int(t), f"{t / fps:.3f}", *map(_g, gaze[t]), *map(_g, q[t]), *map(_g, eyes[t]),
+             *([] if targets is None else map(_g, targets[t]))] for t in frames]
+
+
+def bias(directory: pathlib.Path) -> dict:
+    """A 60 s dyadic interview at 10 fps; person 0 is ann, her partner ben."""
+    fps = 10.0
+    rec = simulate_dyadic(jax.random.key(3), "interview", duration_s=60.0, fps=fps)
+    eye, target = np.asarray(rec.eye_positions[0], float), np.asarray(rec.target_positions[0], float)
+    frames = range(len(eye))
+    _write_csv(directory / "ann_gaze.csv", GAZE_HEADER + ("tx", "ty", "tz"),
+               _gaze_rows(frames, fps, np.asarray(rec.gaze_angles[0], float), rec.R_world_from_head[0], eye, target))
+    rows, target_camera = _openface(rec, 0, fps)
+    (directory / "ann_openface.csv").write_text(
+        ", ".join(OPENFACE_HEADER) + "\n" + "\n".join(", ".join(map(str, r)) for r in rows) + "\n", encoding="utf-8")
+    _write_csv(directory / "ann_targets_camera.csv", ("frame", "tx", "ty", "tz"),
+               [[t + 1, *map(_g, target_camera[t])] for t in frames])
+    _speech(directory, "dyad", "dyad", np.asarray(rec.speaking, bool), ("ann", "ben"), fps)
+    return {"ann": {"bias_deg": np.round(np.degrees(np.asarray(rec.bias[0], float)), 3).tolist()}}
+
+
+def joint(directory: pathlib.Path) -> dict:
+    """A 10 s conversation of three people at 5 fps, one gaze CSV per person (frames where the
+    person is out of view are left out) and who speaks when."""
+    fps, names = 5.0, ("ann", "ben", "cat")
+    scene = simulate_conversation(jax.random.key(0), num_people=3, num_objects=1, duration_s=10.0, fps=fps)
+    for p, name in enumerate(names):
+        frames = np.flatnonzero(np.asarray(scene.present)[:, p])
+        _write_csv(directory / f"{name}.csv", GAZE_HEADER,
+                   _gaze_rows(frames, fps, np.asarray(scene.gaze_angles)[:, p], np.asarray(scene.R_world_from_head)
+                              [:, p], np.asarray(scene.eye_positions)[:, p]))
+    _speech(directory, "speech", "meeting", np.asarray(scene.speaking, bool).T, names, fps)
+    bias_deg = np.round(np.degrees(np.asarray(scene.bias, float)), 3)
+    return {name: {"bias_deg": bias_deg[p].tolist()} for p, name in enumerate(names)}
+
+
+def main() -> None:
+    truth = {}
+    for make in (concurrences, calibrate, bias, joint):
+        directory = HERE / make.__name__
+        directory.mkdir(exist_ok=True)
+        truth[make.__name__] = make(directory)
+    with open(HERE / "truth.json", "w", encoding="utf-8") as handle:
+        json.dump(truth, handle, indent=1)
+        handle.write("\n")
+    files = sorted(p for p in HERE.rglob("*") if p.is_file() and p.suffix != ".py" and p.name != "README.md")
+    total = sum(p.stat().st_size for p in files)
+    print(f"wrote {len(files)} files, {total / 1024:.0f} KiB, under {HERE}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,27 @@
+"""Figures as files: the format from the path's extension, written atomically."""
+
+from __future__ import annotations
+
+import os
+
+from jaxgaze.io.text import atomic_path
+
+__all__ = ["figure_format", "write_figure"]
+
+
+def figure_format(path) -> str:
+    """The image format of a figure path, from its extension; ``ValueError`` for one matplotlib cannot write."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # matplotlib loads only when a figure is asked for
+
+    ext = os.path.splitext(os.fspath(path))[1].lstrip(".").lower()
+    supported = FigureCanvasAgg.get_supported_filetypes()
+    if ext not in supported:
+        raise ValueError(f"unsupported figure format '.{ext}'; use one of " + ", ".join(f".{e}" for e in supported))
+    return ext
+
+
+def write_figure(path, figure, dpi: int = 100) -> None:
+    """Save a matplotlib ``figure`` to ``path`` (atomically) in the format of its extension (:func:`figure_format`)."""
+    fmt = figure_format(path)
+    with atomic_path(path) as tmp:
+        figure.savefig(tmp, format=fmt, dpi=dpi)
