@@ -18,12 +18,12 @@ import pathlib
 import jax
 import numpy as np
 
-from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.openface import R_OPENFACE_MODEL_FROM_HEAD
+from jaxgaze.io.openface import OPENFACE_COLUMNS, openface_pose_and_gaze
 from jaxgaze.io.poses import write_colmap_images, write_pose_csv
 from jaxgaze.io.rays import RayRecording, write_rays_csv
 from jaxgaze.poses import CameraPoses, matrices_to_quaternions
 from jaxgaze.simulate import simulate_calibration_session, simulate_conversation, simulate_dyadic, simulate_scene
+from jaxgaze.simulate import partner_camera_view
 
 HERE = pathlib.Path(__file__).resolve().parent
 GAZE_HEADER = ("frame", "timestamp", "yaw", "tilt", "qw", "qx", "qy", "qz", "ex", "ey", "ez")
@@ -89,39 +89,18 @@ def calibrate(directory: pathlib.Path) -> dict:
                          "direction": np.round(np.asarray(session.direction_a, float), 6).tolist()}}
 
 
-def _unit(v):
-    v = np.asarray(v, float)
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
 def _openface(rec, person: int, fps: float):
     """Rows of an OpenFace 2 FeatureExtraction CSV of ``person`` filmed by a fixed camera 25 cm below
     and 15 cm beside the partner's eyes, and the partner's eye midpoint in our camera frame."""
-    R_world_from_head = np.asarray(rec.R_world_from_head[person], float)
-    eye, target = np.asarray(rec.eye_positions[person], float), np.asarray(rec.target_positions[person], float)
-    yaw, tilt = np.asarray(rec.gaze_angles[person], float).T
-    side = _unit(np.cross([0.0, 0.0, 1.0], _unit(eye.mean(0) - target.mean(0))))
-    centre = target.mean(0) + np.array([0.0, 0.0, -0.25]) + 0.15 * side
-    forward = _unit(eye.mean(0) - centre)
-    left = _unit(np.cross([0.0, 0.0, 1.0], forward))
-    R_world_from_camera = np.stack([forward, left, np.cross(forward, left)], axis=1)
-    R_camera_from_head = R_world_from_camera.T @ R_world_from_head
-    gaze_head = np.stack([np.cos(tilt) * np.cos(yaw), np.cos(tilt) * np.sin(yaw), np.sin(tilt)], axis=-1)
-    gaze_cv = np.einsum("tij,tj->ti", R_camera_from_head, gaze_head) @ R_OURS_FROM_OPENCV  # OpenCV camera frame
-    # OpenFace's head pose: R = Rx(pose_Rx) Ry(pose_Ry) Rz(pose_Rz), head model -> OpenCV camera.
-    R_cv = R_OURS_FROM_OPENCV.T @ R_camera_from_head @ R_OPENFACE_MODEL_FROM_HEAD.T
-    rx = np.arctan2(-R_cv[:, 1, 2], R_cv[:, 2, 2])
-    ry = np.arcsin(np.clip(R_cv[:, 0, 2], -1.0, 1.0))
-    rz = np.arctan2(-R_cv[:, 0, 1], R_cv[:, 0, 0])
-    pose_t = ((eye - centre) @ R_world_from_camera) @ R_OURS_FROM_OPENCV * 1000.0  # millimetres, OpenCV frame
-    gx, gy = np.arctan2(gaze_cv[:, 0], -gaze_cv[:, 2]), np.arctan2(gaze_cv[:, 1], -gaze_cv[:, 2])
-    success = gaze_cv[:, 2] < -0.1  # eyes turned away from the camera: OpenFace loses them
+    view = partner_camera_view(rec, person)
+    columns = openface_pose_and_gaze(view.R_camera_from_head, view.head_position_camera, view.gaze_direction_camera)
+    success = view.faces_camera  # eyes turned away from the camera: OpenFace loses them
     rows = []
-    for t in range(len(eye)):
-        values = [gx[t], gy[t], *pose_t[t], rx[t], ry[t], rz[t]] if success[t] else [0.0] * 8
+    for t in range(len(success)):
+        values = [columns[c][t] for c in OPENFACE_COLUMNS[4:]] if success[t] else [0.0] * 8
         rows.append([t + 1, 0, f"{t / fps:.3f}", "0.98" if success[t] else "0.00", int(success[t]),
                      *(f"{v:.6f}" for v in values), "0.25"])  # OpenFace counts frames from 1
-    return rows, (target - centre) @ R_world_from_camera
+    return rows, view.target_camera
 
 
 def _gaze_rows(frames, fps, gaze, R_world_from_head, eyes, targets=None):

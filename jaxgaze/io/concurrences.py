@@ -7,11 +7,10 @@
 
 from __future__ import annotations
 
-import csv
 
 import numpy as np
 
-from jaxgaze.io.text import atomic_path, format_float
+from jaxgaze.io.text import format_float, write_csv_rows
 
 __all__ = ["OUTPUT_COLUMNS", "MEMBER_COLUMNS", "write_concurrences_csv", "write_members_csv"]
 
@@ -38,18 +37,16 @@ def write_concurrences_csv(path, frame_ids, concurrences, tracks) -> int:
     num_rays = np.asarray(concurrences.num_rays)
     values = np.asarray(concurrences.field_values)
     track_ids = np.asarray(tracks.track_ids)
-    rows = 0
-    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
-        writer.writerow(OUTPUT_COLUMNS)
+
+    def rows():
         for t, frame in enumerate(frame_ids):
             for mode in np.flatnonzero(valid[t]):
                 cov = covariances[t, mode]
-                writer.writerow([frame, int(mode), int(track_ids[t, mode]), *map(format_float, locations[t, mode]),
-                                 *(format_float(cov[i, j]) for i, j in _COVARIANCE_ENTRIES),
-                                 format_float(dof[t, mode]), int(num_rays[t, mode]), format_float(values[t, mode])])
-                rows += 1
-    return rows
+                yield [frame, int(mode), int(track_ids[t, mode]), *map(format_float, locations[t, mode]),
+                       *(format_float(cov[i, j]) for i, j in _COVARIANCE_ENTRIES),
+                       format_float(dof[t, mode]), int(num_rays[t, mode]), format_float(values[t, mode])]
+
+    return write_csv_rows(path, OUTPUT_COLUMNS, rows())
 
 
 def write_members_csv(path, recording, concurrences, tracks) -> int:
@@ -60,14 +57,12 @@ def write_members_csv(path, recording, concurrences, tracks) -> int:
     membership = np.asarray(concurrences.membership)
     partner = np.asarray(concurrences.mutual_gaze)
     track_ids = np.asarray(tracks.track_ids)
-    rows = 0
-    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
-        writer.writerow(MEMBER_COLUMNS)
+
+    def rows():
         for t, (frame, persons) in enumerate(zip(recording.frame_ids, recording.persons)):
             for n, person in enumerate(persons):
                 mode = int(membership[t, n])
-                writer.writerow([frame, person, mode, int(track_ids[t, mode]) if mode >= 0 else -1,
-                                 persons[partner[t, n]] if partner[t, n] >= 0 else ""])
-                rows += 1
-    return rows
+                yield [frame, person, mode, int(track_ids[t, mode]) if mode >= 0 else -1,
+                       persons[partner[t, n]] if partner[t, n] >= 0 else ""]
+
+    return write_csv_rows(path, MEMBER_COLUMNS, rows())

@@ -47,6 +47,7 @@ __all__ = [
     "OpenFaceFileError",
     "OpenFaceTrack",
     "read_openface",
+    "openface_pose_and_gaze",
 ]
 
 #: Columns :func:`read_openface` needs (``face_id`` is used when present).
@@ -302,3 +303,25 @@ def read_openface(path, *, min_confidence: float = 0.75, face_id: Optional[int] 
     )
 
 
+def openface_pose_and_gaze(R_camera_from_head, head_position_camera, gaze_direction_camera) -> dict:
+    """The columns OpenFace 2 writes for a head pose and a gaze given in our camera frame: the
+    inverse of :func:`read_openface`'s conversions, ``{column: (T,) array}`` for
+    ``gaze_angle_x, gaze_angle_y`` (radians), ``pose_Tx, pose_Ty, pose_Tz`` (millimetres) and
+    ``pose_Rx, pose_Ry, pose_Rz`` (radians).
+
+    With ``R = R_OURS_FROM_OPENCVᵀ R_camera_from_head R_OPENFACE_MODEL_FROM_HEADᵀ = Rx Ry Rz``:
+    ``pose_Rx = atan2(−R₁₂, R₂₂)``, ``pose_Ry = asin R₀₂``, ``pose_Rz = atan2(−R₀₁, R₀₀)``;
+    ``g_cv = R_OURS_FROM_OPENCVᵀ g``, ``gaze_angle_x = atan2(g_x, −g_z)``, ``gaze_angle_y = atan2(g_y, −g_z)``
+    (OpenFace's ``GetGazeAngle``); ``pose_T = 1000 R_OURS_FROM_OPENCVᵀ p``.
+    """
+    R_cv = R_OURS_FROM_OPENCV.T @ np.asarray(R_camera_from_head, float) @ R_OPENFACE_MODEL_FROM_HEAD.T
+    g_cv = np.asarray(gaze_direction_camera, float) @ R_OURS_FROM_OPENCV
+    t_cv = np.asarray(head_position_camera, float) @ R_OURS_FROM_OPENCV * 1000.0
+    return {
+        "gaze_angle_x": np.arctan2(g_cv[..., 0], -g_cv[..., 2]),
+        "gaze_angle_y": np.arctan2(g_cv[..., 1], -g_cv[..., 2]),
+        "pose_Tx": t_cv[..., 0], "pose_Ty": t_cv[..., 1], "pose_Tz": t_cv[..., 2],
+        "pose_Rx": np.arctan2(-R_cv[..., 1, 2], R_cv[..., 2, 2]),
+        "pose_Ry": np.arcsin(np.clip(R_cv[..., 0, 2], -1.0, 1.0)),
+        "pose_Rz": np.arctan2(-R_cv[..., 0, 1], R_cv[..., 0, 0]),
+    }

@@ -22,6 +22,7 @@ __all__ = [
     "CsvRow",
     "CsvTable",
     "atomic_path",
+    "write_csv_rows",
     "read_text",
     "read_lines",
     "read_csv_table",
@@ -98,6 +99,19 @@ def atomic_path(path):
         if isinstance(error, OSError) and error.errno is not None and error.filename in (None, tmp):
             error.filename = os.fspath(path)
         raise
+
+
+def write_csv_rows(path, columns, rows) -> int:
+    """Write a header of ``columns`` and the iterable ``rows`` (lists of cells) as CSV, atomically
+    (:func:`atomic_path`); returns the number of rows written."""
+    count = 0
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
+        writer = csv.writer(handle, lineterminator="\n")
+        writer.writerow(columns)
+        for row in rows:
+            writer.writerow(row)
+            count += 1
+    return count
 
 
 def parse_number(text: str, what: str, path, line: int, error: type[InputFileError] = InputFileError,

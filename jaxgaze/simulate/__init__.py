@@ -24,6 +24,8 @@ from jaxgaze.simulate.dyadic import (
     dyadic_config,
     simulate_dyadic,
     simulate_dyadic_sessions,
+    PartnerCameraView,
+    partner_camera_view,
 )
 from jaxgaze.simulate.offsets import (
     ContaminatedOffsets,
@@ -77,6 +79,8 @@ __all__ = [
     "dyadic_config",
     "simulate_dyadic",
     "simulate_dyadic_sessions",
+    "PartnerCameraView",
+    "partner_camera_view",
     "ContaminatedOffsets",
     "simulate_offsets",
     "ConversationConfig",

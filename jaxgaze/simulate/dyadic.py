@@ -130,6 +130,8 @@ __all__ = [
     "dyadic_config",
     "simulate_dyadic",
     "simulate_dyadic_sessions",
+    "PartnerCameraView",
+    "partner_camera_view",
 ]
 
 PRESETS = ("interview", "desk")
@@ -725,3 +727,56 @@ def simulate_dyadic_sessions(
     keys = jax.random.split(key, int(num_sessions))
     arrays = _simulate_many(keys, config=config, num_frames=num_frames, fps=fps)
     return DyadicRecording(**arrays, fps=fps, preset=config.preset, config=config)
+
+
+class PartnerCameraView(NamedTuple):
+    """One person of a :class:`DyadicRecording` seen by a fixed camera by the partner, in **our**
+    camera frame (+x forward along the optical axis, +y left, +z up; metres).
+
+    Attributes:
+        R_world_from_camera: ``(3, 3)`` the camera's axes in the world.
+        center: ``(3,)`` the camera centre, world.
+        R_camera_from_head: ``(T, 3, 3)`` the person's head orientation.
+        head_position_camera: ``(T, 3)`` the person's eye midpoint.
+        gaze_direction_camera: ``(T, 3)`` the *estimated* gaze (``gaze_angles``, bias included).
+        target_camera: ``(T, 3)`` the partner's eye midpoint.
+    """
+
+    R_world_from_camera: np.ndarray
+    center: np.ndarray
+    R_camera_from_head: np.ndarray
+    head_position_camera: np.ndarray
+    gaze_direction_camera: np.ndarray
+    target_camera: np.ndarray
+
+    @property
+    def faces_camera(self) -> np.ndarray:
+        """``(T,)`` frames whose gaze turns toward the camera by more than ~6° (a face tracker sees the eyes)."""
+        return self.gaze_direction_camera[:, 0] < -0.1
+
+
+def partner_camera_view(recording: DyadicRecording, person: int, *, below_m: float = 0.25,
+                        beside_m: float = 0.15) -> PartnerCameraView:
+    """``person`` filmed by a fixed camera ``below_m`` under and ``beside_m`` beside the mean of the
+    partner's eyes, looking at the person's mean eye position (upright: its +y is horizontal)."""
+    R_world_from_head = np.asarray(recording.R_world_from_head[person], float)
+    eye, target = np.asarray(recording.eye_positions[person], float), np.asarray(recording.target_positions[person], float)
+    yaw, tilt = np.asarray(recording.gaze_angles[person], float).T
+
+    def unit_np(v):
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    up = np.array([0.0, 0.0, 1.0])
+    side = unit_np(np.cross(up, unit_np(eye.mean(0) - target.mean(0))))
+    center = target.mean(0) - below_m * up + beside_m * side
+    forward = unit_np(eye.mean(0) - center)
+    left = unit_np(np.cross(up, forward))
+    R_world_from_camera = np.stack([forward, left, np.cross(forward, left)], axis=1)
+    R_camera_from_head = R_world_from_camera.T @ R_world_from_head
+    gaze_head = np.stack([np.cos(tilt) * np.cos(yaw), np.cos(tilt) * np.sin(yaw), np.sin(tilt)], axis=-1)
+    return PartnerCameraView(
+        R_world_from_camera=R_world_from_camera, center=center, R_camera_from_head=R_camera_from_head,
+        head_position_camera=(eye - center) @ R_world_from_camera,
+        gaze_direction_camera=np.einsum("tij,tj->ti", R_camera_from_head, gaze_head),
+        target_camera=(target - center) @ R_world_from_camera,
+    )

@@ -24,11 +24,11 @@ import pytest
 from tests.cli.helpers import assert_failed, run_main
 from scipy.spatial.transform import Rotation
 
-from jaxgaze.io.openface import R_OPENFACE_MODEL_FROM_HEAD
+from jaxgaze.io.openface import OPENFACE_COLUMNS, openface_pose_and_gaze
 from jaxgaze.bias import BIAS_FRAME_COLUMNS
 from jaxgaze.cli import main
-from jaxgaze.geometry import R_OURS_FROM_OPENCV
 from tests import helpers as zoo
+from jaxgaze.simulate import partner_camera_view
 
 FPS = 10.0
 DURATION_S = 60.0
@@ -57,46 +57,21 @@ def _runs(flags):
     return list(zip(edges[::2], edges[1::2]))
 
 
-def _unit(v):
-    v = np.asarray(v, float)
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
 def _openface_track(rec, person, directory):
     """OpenFace CSV and targets CSV (our camera frame) of ``person`` seen by a camera near the partner."""
-    R_world_from_head = np.asarray(rec.R_world_from_head[person], float)
-    eye = np.asarray(rec.eye_positions[person], float)
-    target = np.asarray(rec.target_positions[person], float)
-    yaw, tilt = np.asarray(rec.gaze_angles[person], float).T
-    # The camera sits 25 cm below and 15 cm beside the partner's eyes and looks at the person.
-    forward = _unit(eye.mean(0) - target.mean(0))
-    side = _unit(np.cross([0.0, 0.0, 1.0], forward))
-    centre = target.mean(0) + np.array([0.0, 0.0, -0.25]) + 0.15 * side
-    forward = _unit(eye.mean(0) - centre)
-    left = _unit(np.cross([0.0, 0.0, 1.0], forward))
-    R_world_from_camera = np.stack([forward, left, np.cross(forward, left)], axis=1)
-    R_camera_from_head = R_world_from_camera.T @ R_world_from_head
-    head_camera = (eye - centre) @ R_world_from_camera
-    target_camera = (target - centre) @ R_world_from_camera
-    gaze_head = np.stack([np.cos(tilt) * np.cos(yaw), np.cos(tilt) * np.sin(yaw), np.sin(tilt)], axis=-1)
-    gaze_cv = np.einsum("tij,tj->ti", R_camera_from_head, gaze_head) @ R_OURS_FROM_OPENCV  # Oᵀ v
-    # OpenFace's pose: R_cv = Rx(a) Ry(b) Rz(c), head model -> OpenCV camera.
-    R_cv = R_OURS_FROM_OPENCV.T @ R_camera_from_head @ R_OPENFACE_MODEL_FROM_HEAD.T
-    rx = np.arctan2(-R_cv[:, 1, 2], R_cv[:, 2, 2])
-    ry = np.arcsin(np.clip(R_cv[:, 0, 2], -1.0, 1.0))
-    rz = np.arctan2(-R_cv[:, 0, 1], R_cv[:, 0, 0])
-    pose_t = head_camera @ R_OURS_FROM_OPENCV * 1000.0
-    gx = np.arctan2(gaze_cv[:, 0], -gaze_cv[:, 2])
-    gy = np.arctan2(gaze_cv[:, 1], -gaze_cv[:, 2])
+    view = partner_camera_view(rec, person)  # 25 cm below and 15 cm beside the partner's eyes
+    columns = openface_pose_and_gaze(view.R_camera_from_head, view.head_position_camera, view.gaze_direction_camera)
+    target_camera = view.target_camera
+    eye = view.head_position_camera
     frames = np.arange(len(eye)) + 1  # OpenFace counts frames from 1, timestamps from 0
-    success = gaze_cv[:, 2] < -0.1  # eyes turned away from the camera: OpenFace loses them
+    success = view.faces_camera.copy()  # eyes turned away from the camera: OpenFace loses them
     success[[5, 77]] = False
     confidence = np.full(len(eye), 0.97)
     confidence[[12, 130, 131]] = 0.4
     rows = []
     for t in range(len(eye)):
         if success[t]:
-            values = [gx[t], gy[t], *pose_t[t], rx[t], ry[t], rz[t]]
+            values = [columns[c][t] for c in OPENFACE_COLUMNS[4:]]
         else:
             values = [0.0] * 8
         rows.append(", ".join([str(frames[t]), "0", f"{t / FPS:.3f}", f"{confidence[t]:.2f}", str(int(success[t])),

@@ -644,3 +644,27 @@ def test_speaking_flags_argument_errors(kwargs, error, message):
     args.update(kwargs)
     with pytest.raises(error, match=message):
         speaking_flags(**args)
+
+
+def test_openface_pose_and_gaze_is_the_inverse_of_the_reader(tmp_path):
+    """Columns written by openface_pose_and_gaze read back (read_openface) as the same pose and gaze."""
+    from scipy.spatial.transform import Rotation
+
+    from jaxgaze.io.openface import OPENFACE_COLUMNS, openface_pose_and_gaze
+
+    rng = np.random.default_rng(4)
+    T = 40
+    # heads facing the camera (our −x) within ±40°, gaze toward the camera within ±50°
+    R = Rotation.from_euler("zyx", rng.uniform(-0.7, 0.7, (T, 3))).as_matrix() @ Rotation.from_euler(
+        "z", np.pi).as_matrix()
+    position = np.column_stack([rng.uniform(0.5, 3.0, T), rng.uniform(-0.5, 0.5, (T, 2))])
+    gaze = Rotation.from_euler("zy", rng.uniform(-0.8, 0.8, (T, 2))).apply([-1.0, 0.0, 0.0])
+    columns = openface_pose_and_gaze(R, position, gaze)
+    rows = [", ".join([str(t + 1), f"{t / 10:.1f}", "0.98", "1", *(repr(float(columns[c][t])) for c in
+                                                                  OPENFACE_COLUMNS[4:])]) for t in range(T)]
+    path = tmp_path / "of.csv"
+    path.write_text(", ".join(OPENFACE_COLUMNS) + "\n" + "\n".join(rows) + "\n")
+    track = read_openface(path)
+    np.testing.assert_allclose(track.R_camera_from_head, R, atol=1e-12)
+    np.testing.assert_allclose(track.head_position_camera, position, atol=1e-12)
+    np.testing.assert_allclose(track.gaze_direction_camera, gaze, atol=1e-12)
