@@ -105,15 +105,20 @@ def add_output(parser, flag: str, *, what: str = "output", aliases=(), **kwargs)
 
 
 def negative_values_joined(argv) -> list:
-    """``argv`` with ``--opt -1.7,0,2`` written ``--opt=-1.7,0,2``: argparse reads a value that starts
-    with '-' and is not a plain negative number (a point X,Y,Z, ``-1e-3``, ``-inf``) as an option.
-    Plain negative numbers (``-2``, ``-0.5``), which argparse reads itself, are left as they are."""
+    """``argv`` made readable to argparse, which takes a value that starts with '-' and is not a plain
+    negative number (``-2``, ``-0.5``) for an option. A point ``--opt -1.7,0,2`` becomes
+    ``--opt=-1.7,0,2``; a single number such as ``-inf`` or ``-1e-3`` (also one of several values,
+    ``--bounds -inf -inf 0 inf inf inf``) gets a trailing space, which argparse reads as a value
+    and ``float`` ignores. Plain negative numbers, and everything after ``--``, are left as they are."""
     joined, tokens = [], iter(argv)
     for token in tokens:
         if token == "--":
             return joined + [token, *tokens]
-        if joined and re.fullmatch(r"--[a-z][\w-]*", joined[-1]) and token.startswith("-") \
-                and not re.fullmatch(r"-\d+|-\d*\.\d+", token) and all(_is_number(x) for x in token.split(",")):
+        number_like = token.startswith("-") and not re.fullmatch(r"-\d+|-\d*\.\d+", token) \
+            and all(_is_number(x) for x in token.split(","))
+        if number_like and "," not in token:
+            joined.append(token + " ")
+        elif number_like and joined and re.fullmatch(r"--[a-z][\w-]*", joined[-1]):
             joined[-1] = f"{joined[-1]}={token}"
         else:
             joined.append(token)

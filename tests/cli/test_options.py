@@ -105,12 +105,17 @@ def test_old_spellings_are_hidden_aliases(capsys):
 def test_negative_numbers_are_values():
     argv = ["bias", "g.csv", "--speech", "s.rttm", "--out", "b.json", "--targets", "-1.7,0,2", "--seed", "-3",
             "--min-confidence", "-1e-3"]
-    assert negative_values_joined(argv)[-4:] == ["--targets=-1.7,0,2", "--seed", "-3", "--min-confidence=-1e-3"]
+    assert negative_values_joined(argv)[-5:] == ["--targets=-1.7,0,2", "--seed", "-3", "--min-confidence", "-1e-3 "]
     args = build_parser().parse_args(negative_values_joined(argv))
     assert (args.targets, args.seed, args.min_confidence) == ("-1.7,0,2", -3, -1e-3)
     bounds = ["concurrences", "r.csv", "--out", "o.csv", "--bounds", "-5", "-5", "0", "5", "5.5", "inf"]
     assert negative_values_joined(bounds) == bounds  # plain negative numbers: argparse reads them (nargs=6)
     assert build_parser().parse_args(bounds).bounds == [-5, -5, 0, 5, 5.5, float("inf")]
+    open_sides = ["concurrences", "r.csv", "--out", "o.csv", "--bounds", "-inf", "-inf", "0", "inf", "inf", "-1e-3"]
+    assert build_parser().parse_args(negative_values_joined(open_sides)).bounds == [
+        -float("inf"), -float("inf"), 0, float("inf"), float("inf"), -1e-3]
+    with pytest.raises(SystemExit):  # without the pre-pass argparse takes -inf for an option
+        build_parser().parse_args(open_sides)
     assert negative_values_joined(["joint", "--", "--out", "-1,2"]) == ["joint", "--", "--out", "-1,2"]
     with pytest.raises(SystemExit):  # without the pre-pass argparse takes the point for an option
         build_parser().parse_args(argv)
