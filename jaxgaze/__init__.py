@@ -28,7 +28,8 @@ frames, metres, radians inside (degrees only in names ending ``_deg``).
 
 import importlib
 
-from jaxgaze import bias, calibration, concurrence, cone, geometry, gp, headpose, joint, poses, rays, results
+from jaxgaze import bias, calibration, concurrence, cone, geometry, gp, headpose, joint, poses, rays, results, runtime
+from jaxgaze.runtime import enable_compilation_cache
 from jaxgaze.rays import GazeRays
 from jaxgaze.results import RESULTS, FitError
 from jaxgaze.cone import (
@@ -97,6 +98,9 @@ __all__ = [
     "saliency_field",
     "saliency_field_grid",
     "max_intensity_projection",
+    # runtime: the persistent compilation cache
+    "runtime",
+    "enable_compilation_cache",
     # result codes of every fit
     "results",
     "RESULTS",

@@ -19,6 +19,7 @@ import sys
 from jaxgaze.cli import attend, bias, calibrate, concurrences, demo, fit_gaze, joint
 from jaxgaze.cli._common import negative_values_joined, run_command
 from jaxgaze.cli._interrupt import exit_status, handle_interrupts
+from jaxgaze.runtime import enable_compilation_cache
 
 __all__ = ["main", "console_main", "build_parser"]
 
@@ -55,9 +56,14 @@ def main(argv=None) -> int:
 def console_main() -> None:
     """The ``jaxgaze`` console script: :func:`main` on ``sys.argv``, exit with its status.
 
-    Ctrl-C ends it with status 130 and no output file (:mod:`~jaxgaze.cli._interrupt`),
-    through ``os._exit``: the interpreter's normal shutdown, with XLA's threads still running the
+    JAX's persistent compilation cache is on (:func:`jaxgaze.runtime.enable_compilation_cache`;
+    ``JAXGAZE_CACHE_DIR`` names its folder, ``off`` switches it off). Ctrl-C ends it with status
+    130 and no output file (:mod:`~jaxgaze.cli._interrupt`), through ``os._exit``: the interpreter's normal shutdown, with XLA's threads still running the
     interrupted computation, can crash. :func:`main`, run in-process, returns 130 instead.
     """
     handle_interrupts()
+    try:
+        enable_compilation_cache()  # a second run pays no compilation; JAXGAZE_CACHE_DIR=off switches it off
+    except OSError as error:  # an unwritable cache folder costs speed, not the answer
+        print(f"jaxgaze: warning: no compilation cache: {error}", file=sys.stderr)
     raise SystemExit(exit_status(main()))
