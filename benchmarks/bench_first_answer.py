@@ -1,0 +1,174 @@
+"""Time to first answer in a fresh process, with JAX's persistent compilation cache off, cold and warm.
+
+Issue 21 item 2: most of the time to a first answer is XLA compilation. Each workload
+runs in a new ``python`` process (``JAX_PLATFORMS=cpu``) three times:
+
+* **off**: no persistent cache (``JAXGAZE_CACHE_DIR=off`` for the command);
+* **cold**: ``jaxgaze.enable_compilation_cache(folder)`` on a new, empty temporary folder;
+* **warm**: the same folder again, now filled by the cold run.
+
+Workloads:
+
+1. ``find_concurrences`` on ``--scenes`` scenes of 4–24 people (numpy seed fixed): people
+   on a circle of radius 2 m at eye height 1.6 m, half looking at one of two points,
+   half elsewhere; ``GazeRays(origins, directions, bandwidth=0.05)``. Reported: the total
+   for all scenes, and the first call alone.
+2. ``jaxgaze.gp.fit`` at ``--gp-n`` points of a 1-D ``sin`` toy set (float64), the call of
+   ``bench_gp.py``: ``RationalQuadratic + Linear + White``, ``jitter=1e-10``.
+3. ``jaxgaze demo -q --out <tmp>.png`` through the console script (its cache is on by
+   default; the folder comes from ``JAXGAZE_CACHE_DIR``).
+
+Timing: for 1–2 the child measures ``time.perf_counter`` from before ``import jaxgaze``
+(and numpy) to after ``block_until_ready`` of the answer and prints it; the parent also
+reports the whole-process wall time (interpreter start and exit included). For 3 only the
+whole-process time exists.
+
+Usage::
+
+    python benchmarks/bench_first_answer.py            # 30 scenes, n = 1000, the demo (~3 min on 2 cores)
+    python benchmarks/bench_first_answer.py --scenes 10 --gp-n 500
+    python benchmarks/bench_first_answer.py --workloads gp,demo
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+CONCURRENCES_CHILD = r"""
+import time
+t0 = time.perf_counter()
+import sys
+import numpy as np
+import jax
+import jaxgaze
+folder, num_scenes = sys.argv[1], int(sys.argv[2])
+if folder != "off":
+    jaxgaze.enable_compilation_cache(folder)
+rng = np.random.default_rng(0)
+targets = np.array([[0.5, 0.0, 1.0], [-0.6, 0.4, 1.2]])
+scenes = []
+for _ in range(num_scenes):
+    n = int(rng.integers(4, 25))
+    angle = rng.uniform(0.0, 2 * np.pi, n)
+    origins = np.column_stack([2.0 * np.cos(angle), 2.0 * np.sin(angle), np.full(n, 1.6)])
+    looking = rng.permutation(n) < n // 2
+    goal = targets[rng.integers(0, 2, n)]
+    directions = goal - origins
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    directions += rng.normal(0.0, 0.02, (n, 3))
+    elsewhere = rng.normal(size=(n, 3))
+    directions[~looking] = elsewhere[~looking]
+    scenes.append((origins, directions))
+first = None
+for origins, directions in scenes:
+    found = jaxgaze.find_concurrences(jaxgaze.GazeRays(origins, directions, bandwidth=0.05))
+    jax.block_until_ready(found)
+    if first is None:
+        first = time.perf_counter() - t0
+print(f"ANSWER {time.perf_counter() - t0:.3f} FIRST {first:.3f}")
+"""
+
+GP_CHILD = r"""
+import time
+t0 = time.perf_counter()
+import sys
+import numpy as np
+import jax
+import jaxgaze
+import jaxgaze.gp as gp
+folder, n = sys.argv[1], int(sys.argv[2])
+if folder != "off":
+    jaxgaze.enable_compilation_cache(folder)
+jax.config.update("jax_enable_x64", True)
+rng = np.random.default_rng(0)
+X = rng.uniform(-3.0, 3.0, (n, 1))
+y = np.sin(X[:, 0]) + rng.normal(0.0, 0.1, n)
+kernel = gp.RationalQuadratic(1.0, 1.0, 1.0) + gp.Linear(1.0, 1.0, fixed=("variance",)) + gp.White(1.0)
+fitted = gp.fit(kernel, jax.numpy.asarray(X), jax.numpy.asarray(y), key=jax.random.key(0), jitter=1e-10)
+jax.block_until_ready(fitted.alpha)
+print(f"ANSWER {time.perf_counter() - t0:.3f}")
+"""
+
+MODES = ("off", "cold", "warm")
+
+
+def _parse():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", type=int, default=30, help="scenes of 4-24 people for find_concurrences")
+    parser.add_argument("--gp-n", type=int, default=1000, help="training points for gp.fit")
+    parser.add_argument("--workloads", default="concurrences,gp,demo", help="comma-separated: concurrences, gp, demo")
+    return parser.parse_args()
+
+
+def _run(cmd, env_extra):
+    env = dict(os.environ, JAX_PLATFORMS="cpu", **env_extra)
+    t = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t
+    if proc.returncode != 0:
+        sys.exit(f"{' '.join(cmd[:3])}... failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
+    fields = {}
+    for line in proc.stdout.splitlines():
+        if line.startswith("ANSWER"):
+            words = line.split()
+            fields = {words[i]: float(words[i + 1]) for i in range(0, len(words), 2)}
+    return wall, fields
+
+
+def _jaxgaze_command():
+    script = shutil.which("jaxgaze")
+    return [script] if script else [sys.executable, "-m", "jaxgaze"]
+
+
+def measure(workload, args, tmp):
+    """``{mode: (whole-process wall, {"ANSWER": s, "FIRST": s})}`` for off, cold and warm."""
+    folder = os.path.join(tmp, f"cache-{workload}")
+    out = {}
+    for mode in MODES:
+        where = "off" if mode == "off" else folder
+        if workload == "concurrences":
+            cmd, env = [sys.executable, "-c", CONCURRENCES_CHILD, where, str(args.scenes)], {}
+        elif workload == "gp":
+            cmd, env = [sys.executable, "-c", GP_CHILD, where, str(args.gp_n)], {}
+        else:
+            png = os.path.join(tmp, f"demo-{mode}.png")
+            cmd, env = _jaxgaze_command() + ["demo", "-q", "--out", png], {"JAXGAZE_CACHE_DIR": where}
+        out[mode] = _run(cmd, env)
+        wall, fields = out[mode]
+        shown = " ".join(f"{k.lower()} {v:.1f} s" for k, v in fields.items())
+        print(f"  {workload:<12} {mode:<5} process {wall:6.1f} s  {shown}", flush=True)
+    return out
+
+
+def main() -> None:
+    args = _parse()
+    print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs, JAX_PLATFORMS=cpu; "
+          f"{args.scenes} scenes, gp n = {args.gp_n}", flush=True)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="jaxgaze-first-answer-") as tmp:
+        for workload in [w for w in args.workloads.split(",") if w]:
+            res = measure(workload, args, tmp)
+            if workload == "concurrences":
+                rows.append((f"find_concurrences, {args.scenes} scenes of 4-24 people: all",
+                             [res[m][1]["ANSWER"] for m in MODES]))
+                rows.append(("find_concurrences: the first scene alone", [res[m][1]["FIRST"] for m in MODES]))
+            elif workload == "gp":
+                rows.append((f"gp.fit, n = {args.gp_n}", [res[m][1]["ANSWER"] for m in MODES]))
+            rows.append((f"{'jaxgaze demo -q' if workload == 'demo' else workload}: whole process",
+                         [res[m][0] for m in MODES]))
+    width = max(len(r[0]) for r in rows)
+    print()
+    print(f"{'workload (seconds)':<{width}} | {'cache off':>9} | {'cold cache':>10} | {'warm cache':>10}")
+    print("-" * (width + 39))
+    for name, (off, cold, warm) in rows:
+        print(f"{name:<{width}} | {off:9.1f} | {cold:10.1f} | {warm:10.1f}")
+
+
+if __name__ == "__main__":
+    main()
