@@ -5,31 +5,43 @@ import subprocess
 import sys
 
 import jax
+import pytest
 
 from jaxgaze.runtime import CACHE_DIR_VARIABLE, default_cache_dir, enable_compilation_cache
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-RAYS = os.path.join(ROOT, "examples", "concurrences", "rays.csv")
+#: A fresh process: the cache on ``sys.argv[1]``, then one small jitted program, its answer printed.
+PROGRAM = ("import sys, jax, jax.numpy as jnp, jaxgaze; jaxgaze.enable_compilation_cache(sys.argv[1]); "
+           "print(float(jax.jit(lambda x: jnp.sum(jnp.sin(x) ** 2))(jnp.arange(7.0))))")
 
 
-def _concurrences(cache, out):
-    """``jaxgaze concurrences`` on the example rays, in a fresh process (the console script's entry)."""
-    env = dict(os.environ, JAX_PLATFORMS="cpu", **{CACHE_DIR_VARIABLE: str(cache)})
-    code = "from jaxgaze.cli import console_main; console_main()"
-    done = subprocess.run([sys.executable, "-c", code, "concurrences", RAYS, "--out", str(out), "-q"], env=env,
-                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=300)
+def _fresh_process(cache):
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    done = subprocess.run([sys.executable, "-c", PROGRAM, str(cache)], env=env, stdin=subprocess.DEVNULL,
+                          capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    return out.read_text()
+    return done.stdout
 
 
 def test_a_second_process_compiles_nothing(tmp_path):
     cache = tmp_path / "cache"
-    first = _concurrences(cache, tmp_path / "first.csv")
+    first = _fresh_process(cache)
     entries = sorted(os.listdir(cache))
-    assert len(entries) >= 3  # the programs of the first run are stored
-    second = _concurrences(cache, tmp_path / "second.csv")
-    assert sorted(os.listdir(cache)) == entries  # every program came from the cache: nothing new was stored
-    assert second == first
+    assert entries  # the first process stored its program
+    assert _fresh_process(cache) == first
+    assert sorted(os.listdir(cache)) == entries  # the second read it back: nothing new was stored
+
+
+def test_the_command_turns_the_cache_on(monkeypatch, tmp_path):
+    """``console_main`` enables the cache before the command runs (here: its --help, exit 0)."""
+    from jaxgaze import cli
+
+    calls = []
+    monkeypatch.setattr(cli, "enable_compilation_cache", lambda: calls.append("cache"))
+    monkeypatch.setattr(cli, "handle_interrupts", lambda: None)
+    monkeypatch.setattr(cli.sys, "argv", ["jaxgaze", "--version"])
+    with pytest.raises(SystemExit) as exit_info:
+        cli.console_main()
+    assert calls == ["cache"] and exit_info.value.code == 0
 
 
 def test_cache_folder_from_the_environment(monkeypatch, tmp_path):
