@@ -15,17 +15,22 @@ Workloads:
    for all scenes, and the first call alone.
 2. ``jaxgaze.gp.fit`` at ``--gp-n`` points of a 1-D ``sin`` toy set (float64), the call of
    ``bench_gp.py``: ``RationalQuadratic + Linear + White``, ``jitter=1e-10``.
-3. ``jaxgaze demo -q --out <tmp>.png`` through the console script (its cache is on by
-   default; the folder comes from ``JAXGAZE_CACHE_DIR``).
+3. ``jaxgaze demo -q --out <tmp>.png`` through ``jaxgaze.cli.console_main`` (its cache is on
+   by default; the folder comes from ``JAXGAZE_CACHE_DIR``).
 
 Timing: for 1–2 the child measures ``time.perf_counter`` from before ``import jaxgaze``
 (and numpy) to after ``block_until_ready`` of the answer and prints it; the parent also
 reports the whole-process wall time (interpreter start and exit included). For 3 only the
-whole-process time exists.
+whole-process time exists; the child runs ``jaxgaze.cli.console_main``, what the ``jaxgaze``
+console script runs, so that it can count programs.
+
+Programs: every child counts, through ``jax.monitoring``, the XLA programs it asked for
+(``/jax/core/compile/backend_compile_duration``) and how many of them came from the
+persistent cache (``/jax/compilation_cache/cache_hits``); the rest were compiled.
 
 Usage::
 
-    python benchmarks/bench_first_answer.py            # 30 scenes, n = 1000, the demo (~3 min on 2 cores)
+    python benchmarks/bench_first_answer.py            # 30 scenes, n = 1000, the demo (~2 min on 2 cores)
     python benchmarks/bench_first_answer.py --scenes 10 --gp-n 500
     python benchmarks/bench_first_answer.py --workloads gp,demo
 """
@@ -34,15 +39,39 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
 import time
 
+# Counts the programs a child asks XLA for, and those the persistent cache supplied.
+COUNTER = r"""
+import jax.monitoring
+PROGRAMS = {"programs": 0, "cached": 0}
+
+
+def _count_program(event, duration_secs, **kwargs):
+    if event == "/jax/core/compile/backend_compile_duration":
+        PROGRAMS["programs"] += 1
+
+
+def _count_hit(event, **kwargs):
+    if event == "/jax/compilation_cache/cache_hits":
+        PROGRAMS["cached"] += 1
+
+
+jax.monitoring.register_event_duration_secs_listener(_count_program)
+jax.monitoring.register_event_listener(_count_hit)
+
+
+def programs_line():
+    return f"PROGRAMS {PROGRAMS['programs']} CACHED {PROGRAMS['cached']}"
+"""
+
 CONCURRENCES_CHILD = r"""
 import time
 t0 = time.perf_counter()
+""" + COUNTER + r"""
 import sys
 import numpy as np
 import jax
@@ -71,12 +100,13 @@ for origins, directions in scenes:
     jax.block_until_ready(found)
     if first is None:
         first = time.perf_counter() - t0
-print(f"ANSWER {time.perf_counter() - t0:.3f} FIRST {first:.3f}")
+print(f"ANSWER {time.perf_counter() - t0:.3f} FIRST {first:.3f} {programs_line()}")
 """
 
 GP_CHILD = r"""
 import time
 t0 = time.perf_counter()
+""" + COUNTER + r"""
 import sys
 import numpy as np
 import jax
@@ -92,7 +122,17 @@ y = np.sin(X[:, 0]) + rng.normal(0.0, 0.1, n)
 kernel = gp.RationalQuadratic(1.0, 1.0, 1.0) + gp.Linear(1.0, 1.0, fixed=("variance",)) + gp.White(1.0)
 fitted = gp.fit(kernel, jax.numpy.asarray(X), jax.numpy.asarray(y), key=jax.random.key(0), jitter=1e-10)
 jax.block_until_ready(fitted.alpha)
-print(f"ANSWER {time.perf_counter() - t0:.3f}")
+print(f"ANSWER {time.perf_counter() - t0:.3f} {programs_line()}")
+"""
+
+DEMO_CHILD = COUNTER + r"""
+import sys
+from jaxgaze.cli import console_main
+sys.argv = ["jaxgaze"] + sys.argv[1:]
+try:
+    console_main()
+finally:
+    print(f"ANSWER nan {programs_line()}")
 """
 
 MODES = ("off", "cold", "warm")
@@ -121,13 +161,8 @@ def _run(cmd, env_extra):
     return wall, fields
 
 
-def _jaxgaze_command():
-    script = shutil.which("jaxgaze")
-    return [script] if script else [sys.executable, "-m", "jaxgaze"]
-
-
 def measure(workload, args, tmp):
-    """``{mode: (whole-process wall, {"ANSWER": s, "FIRST": s})}`` for off, cold and warm."""
+    """``{mode: (whole-process wall, {"ANSWER": s, "FIRST": s, "PROGRAMS": k, "CACHED": k})}`` for off, cold, warm."""
     folder = os.path.join(tmp, f"cache-{workload}")
     out = {}
     for mode in MODES:
@@ -138,11 +173,12 @@ def measure(workload, args, tmp):
             cmd, env = [sys.executable, "-c", GP_CHILD, where, str(args.gp_n)], {}
         else:
             png = os.path.join(tmp, f"demo-{mode}.png")
-            cmd, env = _jaxgaze_command() + ["demo", "-q", "--out", png], {"JAXGAZE_CACHE_DIR": where}
+            cmd, env = [sys.executable, "-c", DEMO_CHILD, "demo", "-q", "--out", png], {"JAXGAZE_CACHE_DIR": where}
         out[mode] = _run(cmd, env)
         wall, fields = out[mode]
-        shown = " ".join(f"{k.lower()} {v:.1f} s" for k, v in fields.items())
-        print(f"  {workload:<12} {mode:<5} process {wall:6.1f} s  {shown}", flush=True)
+        shown = " ".join(f"{k.lower()} {v:.1f} s" for k, v in fields.items() if k in ("ANSWER", "FIRST") and v == v)
+        print(f"  {workload:<12} {mode:<5} process {wall:6.1f} s  {shown}  programs {fields['PROGRAMS']:.0f}, "
+              f"{fields['CACHED']:.0f} from the cache", flush=True)
     return out
 
 
@@ -162,12 +198,16 @@ def main() -> None:
                 rows.append((f"gp.fit, n = {args.gp_n}", [res[m][1]["ANSWER"] for m in MODES]))
             rows.append((f"{'jaxgaze demo -q' if workload == 'demo' else workload}: whole process",
                          [res[m][0] for m in MODES]))
+            # Programs compiled (asked for − taken from the persistent cache) of the whole process.
+            rows.append((f"{workload}: programs compiled (of those asked for)",
+                         [(res[m][1]["PROGRAMS"] - res[m][1]["CACHED"], res[m][1]["PROGRAMS"]) for m in MODES]))
     width = max(len(r[0]) for r in rows)
     print()
     print(f"{'workload (seconds)':<{width}} | {'cache off':>9} | {'cold cache':>10} | {'warm cache':>10}")
     print("-" * (width + 39))
-    for name, (off, cold, warm) in rows:
-        print(f"{name:<{width}} | {off:9.1f} | {cold:10.1f} | {warm:10.1f}")
+    for name, cells in rows:
+        shown = [f"{c[0]:.0f} ({c[1]:.0f})" if isinstance(c, tuple) else f"{c:.1f}" for c in cells]
+        print(f"{name:<{width}} | {shown[0]:>9} | {shown[1]:>10} | {shown[2]:>10}")
 
 
 if __name__ == "__main__":

@@ -114,7 +114,7 @@ def main(argv=None) -> dict:
                        np.concatenate([d[1] for d in data]).astype(np.float32),
                        bandwidth.astype(np.float32), np.concatenate([d[2] for d in data]))
     start = time.perf_counter()
-    found = jg.find_concurrences_over_frames(rays)
+    found = jg.find_concurrences_over_frames(rays, warm_start=False)  # independent scenes, not a recording
     elapsed = time.perf_counter() - start
 
     print("Coverage of the concurrence covariances (independent scene generator, count right only)")

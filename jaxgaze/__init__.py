@@ -59,6 +59,7 @@ from jaxgaze.concurrence import (
     meanshift,
     propagate_to_concurrences,
     track_concurrences,
+    ConcurrenceStream,
 )
 from jaxgaze.bias import (
     BiasEstimate,
@@ -121,6 +122,7 @@ __all__ = [
     "ConcurrenceOptions",
     "Concurrences",
     "track_concurrences",
+    "ConcurrenceStream",
     "Tracks",
     "propagate_to_concurrences",
     "ConcurrenceEnsemble",

@@ -100,7 +100,9 @@ class GazeRays(eqx.Module):
     ``(..., N)``, and concrete inputs are validated: a ``ValueError`` names the
     field and the first offending ray for NaN/inf, a zero-length direction, a
     non-positive bandwidth or mismatched shapes. Padded rays are not checked
-    and are replaced by a harmless placeholder so that no NaN can leak.
+    and are replaced by a harmless placeholder so that no NaN can leak. Host
+    inputs (numpy arrays, lists) are prepared in numpy and sent to the device
+    once, so that a new number of rays compiles nothing.
     """
 
     origins: Float[Array, "... N 3"]
@@ -109,14 +111,20 @@ class GazeRays(eqx.Module):
     mask: Bool[Array, "... N"]
 
     def __init__(self, origins, directions, bandwidth=0.05, mask=None):
-        origins = jnp.asarray(origins)
-        directions = jnp.asarray(directions)
+        # Host inputs (numpy, lists, numbers) are checked and normalised in numpy and sent to
+        # the device once: eager jnp ops here would compile a few small programs for every
+        # new number of rays (issue 21, time to first answer). Device arrays and tracers
+        # stay on the device, where they are.
+        on_host = not any(isinstance(a, jax.Array) for a in (origins, directions, bandwidth, mask))
+        xp = np if on_host else jnp
+        origins = _as_canonical(origins, xp)
+        directions = _as_canonical(directions, xp)
         if not jnp.issubdtype(origins.dtype, jnp.floating):
             origins = origins.astype(jnp.result_type(float))
         dtype = jnp.result_type(origins.dtype, directions.dtype, jnp.float32)
         origins = origins.astype(dtype)
         directions = directions.astype(dtype)
-        bandwidth = jnp.asarray(bandwidth, dtype=dtype)
+        bandwidth = xp.asarray(bandwidth, dtype=dtype)
 
         if origins.ndim < 2 or origins.shape[-1] != 3:
             raise ValueError(f"GazeRays: origins must have shape (..., N, 3), got {origins.shape}")
@@ -125,27 +133,36 @@ class GazeRays(eqx.Module):
                 f"GazeRays: directions shape {directions.shape} does not match origins shape {origins.shape}"
             )
         ray_shape = origins.shape[:-1]
-        if mask is None:
-            mask = jnp.ones(ray_shape, dtype=bool)
-        mask = jnp.asarray(mask)
+        mask = xp.ones(ray_shape, dtype=bool) if mask is None else xp.asarray(mask)
         if mask.shape != ray_shape:
             raise ValueError(f"GazeRays: mask shape {mask.shape} must be {ray_shape} (one entry per ray)")
         mask = mask.astype(bool)
         try:
-            bandwidth = jnp.broadcast_to(bandwidth, ray_shape)
+            bandwidth = xp.broadcast_to(bandwidth, ray_shape)
         except ValueError:
             raise ValueError(
                 f"GazeRays: bandwidth shape {bandwidth.shape} must be a scalar or {ray_shape} (one per ray)"
             ) from None
 
-        if _is_concrete(origins, directions, bandwidth, mask):
-            _validate(np.asarray(origins), np.asarray(directions), np.asarray(bandwidth), np.asarray(mask))
-
-        placeholder = jnp.zeros_like(directions).at[..., 0].set(1.0)
-        self.origins = jnp.where(mask[..., None], origins, 0.0)
-        self.directions = jnp.where(mask[..., None], unit(directions), placeholder)
-        self.bandwidth = jnp.where(mask, bandwidth, 1.0)
-        self.mask = mask
+        if not on_host:
+            if _is_concrete(origins, directions, bandwidth, mask):
+                _validate(np.asarray(origins), np.asarray(directions), np.asarray(bandwidth), np.asarray(mask))
+            placeholder = jnp.zeros_like(directions).at[..., 0].set(1.0)
+            self.origins = jnp.where(mask[..., None], origins, 0.0)
+            self.directions = jnp.where(mask[..., None], unit(directions), placeholder)
+            self.bandwidth = jnp.where(mask, bandwidth, 1.0)
+            self.mask = mask
+            return
+        _validate(origins, directions, bandwidth, mask)
+        placeholder = np.zeros_like(directions)
+        placeholder[..., 0] = 1.0
+        fields = (
+            np.where(mask[..., None], origins, origins.dtype.type(0.0)),
+            np.where(mask[..., None], _unit_host(directions), placeholder),
+            np.where(mask, bandwidth, bandwidth.dtype.type(1.0)),
+            mask,
+        )
+        self.origins, self.directions, self.bandwidth, self.mask = jax.device_put(fields)
 
     @property
     def num_rays(self) -> int:
@@ -221,6 +238,22 @@ class GazeRays(eqx.Module):
         rays = cls(padded(origins, 0.0), padded(directions, 1.0), padded(bandwidth, 1.0),
                    padded(np.ones(count, dtype=bool), False))
         return frame_ids, rays
+
+
+def _as_canonical(values, xp):
+    """``values`` as an array of ``xp`` (numpy or jax.numpy) with the dtype ``jnp.asarray`` would give it."""
+    if xp is jnp:
+        return jnp.asarray(values)
+    values = np.asarray(values)
+    return values.astype(jax.dtypes.canonicalize_dtype(values.dtype), copy=False)
+
+
+def _unit_host(v: np.ndarray) -> np.ndarray:
+    """:func:`jaxgaze.geometry.unit` in numpy, in ``v``'s dtype: ``v / ‖v‖``, zero vectors stay zero."""
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN in padded rays, overflow as in jnp
+        sq = np.sum(v * v, axis=-1, keepdims=True)
+        nonzero = sq > np.finfo(v.dtype).tiny
+        return np.where(nonzero, v / np.sqrt(np.where(nonzero, sq, v.dtype.type(1.0))), v.dtype.type(0.0))
 
 
 def _validate(origins: np.ndarray, directions: np.ndarray, bandwidth: np.ndarray, mask: np.ndarray) -> None:

@@ -158,6 +158,30 @@ def test_padded_rays_are_not_validated_and_replaced():
         GazeRays(origins, directions, _with(bandwidth, 2, 0.0), mask)
 
 
+def test_host_inputs_compile_nothing_and_match_device_inputs():
+    # Issue 21 (time to first answer): rays from numpy arrays are prepared on the host, so a
+    # new number of rays compiles no program; device arrays give the same rays.
+    compiled = []
+
+    def listener(event, duration_secs, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(event)
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        host = [GazeRays(*_good(n), mask=np.arange(n) != 1) for n in (3, 5, 6)]
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+    assert compiled == []
+    origins, directions, bandwidth = _good(5)
+    device = GazeRays(jnp.asarray(origins), jnp.asarray(directions), jnp.asarray(bandwidth),
+                      jnp.asarray(np.arange(5) != 1))
+    for name in ("origins", "directions", "bandwidth", "mask"):
+        got, want = getattr(host[1], name), getattr(device, name)
+        assert isinstance(got, jax.Array) and got.dtype == want.dtype and got.shape == want.shape, name
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-6, atol=1e-7, err_msg=name)
+
+
 # ---------------------------------------------------------------- stack and indexing
 
 

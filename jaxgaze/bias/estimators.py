@@ -21,6 +21,7 @@ ground-truth looking frames.
 from __future__ import annotations
 
 import functools
+import math
 from typing import TYPE_CHECKING, NamedTuple
 
 import jax
@@ -31,7 +32,7 @@ import numpyro.distributions as dist
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from jaxgaze._checks import bucket_size
-from jaxgaze.geometry import deg_to_rad, rad_to_deg
+from jaxgaze.geometry import rad_to_deg
 from jaxgaze.nuts import mixing_diagnostics, mixing_result, posterior_summary, quiet_single_chain, sample_nuts
 from jaxgaze.results import RESULTS, throw_if_failed
 
@@ -53,7 +54,7 @@ __all__ = [
 
 METHODS = ("mean", "lmeds", "bayes")
 
-_DEG = float(deg_to_rad(1.0))
+_DEG = math.radians(1.0)  # not deg_to_rad: a program compiled at import would never be cached
 
 
 class BiasEstimate(NamedTuple):

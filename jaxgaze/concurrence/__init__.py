@@ -9,6 +9,7 @@ Where each equation and section lives:
 | eq. 6 as one fused GPU kernel (Pallas) | ``fused_meanshift`` | ``concurrence/meanshift_pallas.py`` |
 | Sec. 3.3: exclusive support, ML location, Laplace covariance | ``find_concurrences``, ``find_concurrences_over_frames`` | ``concurrence/modes.py`` |
 | Sec. 3.3: concurrences linked over frames | ``track_concurrences`` | ``concurrence/modes.py`` |
+| Sec. 3.3: a live stream, frame by frame, with track ids | ``ConcurrenceStream`` | ``concurrence/stream.py`` |
 | Sec. 3.2 and 4: calibration uncertainty in the concurrences | ``propagate_to_concurrences`` | ``concurrence/propagate.py`` |
 | Sec. 4.1: error against the truth, confidence regions | ``match_concurrences``, ``evaluate``, ``region_coverage`` | ``concurrence/metrics.py`` |
 """
@@ -24,6 +25,7 @@ from jaxgaze.concurrence.modes import (
     track_concurrences,
     DEFAULT_SEED_DEPTHS,
 )
+from jaxgaze.concurrence.stream import ConcurrenceStream, StreamFrame, StreamState
 from jaxgaze.concurrence.propagate import (
     ConcurrenceEnsemble,
     propagate_to_concurrences,
@@ -53,6 +55,9 @@ __all__ = [
     "find_concurrences_over_frames",
     "track_concurrences",
     "DEFAULT_SEED_DEPTHS",
+    "ConcurrenceStream",
+    "StreamFrame",
+    "StreamState",
     "ConcurrenceEnsemble",
     "propagate_to_concurrences",
     "Matching",

@@ -69,7 +69,9 @@ def propagate_to_concurrences(
         raise ValueError(f"need one camera pose per person: R {R.shape}, centres {C.shape} for N = {eye.shape[1]}")
     origins = jnp.einsum("nij,snj->sni", R, eye) + C
     world_directions = jnp.einsum("nij,snj->sni", R, d)
-    ensemble = find_concurrences_over_frames(GazeRays(origins, world_directions, bandwidths), options)
+    # The draws are not frames in time: each is searched from the full seed set.
+    ensemble = find_concurrences_over_frames(GazeRays(origins, world_directions, bandwidths), options,
+                                             warm_start=False)
     mean_direction = unit(world_directions.mean(0))
     reference = find_concurrences(GazeRays(origins.mean(0), mean_direction, jnp.asarray(bandwidths).mean(0)), options)
 

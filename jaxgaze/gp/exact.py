@@ -9,7 +9,7 @@ observations is ``K = kernel(X) + jitter·I``.
   (n/2) log 2π`` with ``K = L Lᵀ`` (Cholesky). Its gradient with respect to
   ``K`` is ``½(ααᵀ − K⁻¹)`` with ``α = K⁻¹y`` (Rasmussen & Williams eq. 5.9);
   we supply that as a custom JVP, so one value-and-gradient costs a Cholesky
-  plus one ``K⁻¹`` (LAPACK ``potri`` on CPU), whatever the number of parameters.
+  plus one ``K⁻¹`` (LAPACK ``potri`` on CPU from n = 513), whatever the number of parameters.
 * :func:`predict` — eq. 12–13: mean ``K*ᵀ K⁻¹ y`` and covariance
   ``K** − K*ᵀ K⁻¹ K*`` with ``K* = kernel(X, X_new)`` and ``K** = kernel(X_new)``.
   ``K**`` uses the same-set convention, so a White term adds the noise to the
@@ -186,27 +186,36 @@ def _host_potri(bits: np.ndarray, dtype) -> np.ndarray:
     return np.ascontiguousarray(upper).view(np.uint32).reshape(bits.shape)
 
 
+#: Smallest ``n`` whose ``K⁻¹`` is taken by LAPACK ``potri`` in a host callback on CPU.
+#: Below it, XLA's two triangular solves cost about the same (float64 n = 512: 9.6 against
+#: 6.4 ms, float32: 4.0 against 4.0 ms, one thread) and keep the program free of host
+#: callbacks, which JAX's persistent compilation cache never stores: the subset stages of
+#: :func:`fit` then come from the cache in a new process (``benchmarks/RESULTS.md``).
+_HOST_POTRI_MIN_SIZE = 513
+
+
 @jax.custom_jvp
 def _upper_inverse_from_cholesky(L: Float[Array, "n n"]) -> Float[Array, "n n"]:
     """``triu(K⁻¹)`` (zeros below the diagonal) from the lower Cholesky factor of ``K``.
 
-    On CPU this calls LAPACK ``potri`` through SciPy (``2n³/3`` flops, about a
-    third of ``cho_solve(L, I)``, which XLA:CPU runs as two full triangular
-    solves); elsewhere it is ``triu(cho_solve(L, I))``. NaN when ``L`` is not a
-    valid factor. The gradient of the LML needs ``K⁻¹`` only through
+    On CPU from ``n = 513`` (:data:`_HOST_POTRI_MIN_SIZE`) this calls LAPACK ``potri``
+    through SciPy (``2n³/3`` flops, about a third of ``cho_solve(L, I)``, which XLA:CPU
+    runs as two full triangular solves); otherwise it is ``triu(cho_solve(L, I))``. NaN
+    when ``L`` is not a valid factor. The gradient of the LML needs ``K⁻¹`` only through
     ``tr(K⁻¹ S)`` for symmetric ``S``, which the triangle gives without the
     transposing pass that would mirror it (:func:`_gaussian_lml`). The callback
     exchanges the matrices as ``uint32`` bit patterns: JAX hands callbacks arrays
     canonicalised by the *calling thread's* x64 setting, which under the
     ``jax.enable_x64`` context manager would silently round float64 to float32.
     """
-    if jax.default_backend() == "cpu":
+    if jax.default_backend() == "cpu" and L.shape[0] >= _HOST_POTRI_MIN_SIZE:
         bits = jax.lax.bitcast_convert_type(L, jnp.uint32)
         shape = jax.ShapeDtypeStruct(bits.shape, jnp.uint32)
         callback = functools.partial(_host_potri, dtype=np.dtype(L.dtype))
         out = jax.pure_callback(callback, shape, bits, vmap_method="sequential")
         return jax.lax.bitcast_convert_type(out, L.dtype)
-    return jnp.triu(cho_solve((L, True), jnp.eye(L.shape[0], dtype=L.dtype)))
+    upper = jnp.triu(cho_solve((L, True), jnp.eye(L.shape[0], dtype=L.dtype)))
+    return jnp.where(jnp.all(jnp.isfinite(upper)), upper, jnp.nan)
 
 
 def _symmetric_from_upper(U: Float[Array, "n n"]) -> Float[Array, "n n"]:
@@ -795,9 +804,12 @@ def fit(
         plan.remove((n, low))  # the float64 stage on all data starts from the last float32 subset's optimum
     probe_keys = jax.random.split(key_probe, len(plan))
 
+    X_host, y_host = np.asarray(X), np.asarray(y)
+
     def subset(m, dt):
+        # On the host: indexing the device arrays would compile a few programs per stage.
         index = np.sort(perm[:m])
-        return X[index].astype(dt), y[index].astype(dt)
+        return jax.device_put((X_host[index].astype(np.dtype(dt)), y_host[index].astype(np.dtype(dt))))
 
     def stage_tol(m, dt):
         t = tol if (m == n and dt == dtype) else _STAGE_TOL_FACTOR * tol * m / n

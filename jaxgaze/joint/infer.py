@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import math
+import sys
 from typing import NamedTuple
 
 import jax
@@ -21,10 +22,12 @@ import numpyro
 import numpyro.distributions as dist
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
+from jax.sharding import NamedSharding, PartitionSpec
 from numpyro import handlers
 from numpyro.infer import SVI, Predictive, Trace_ELBO
 from numpyro.infer.util import potential_energy
 
+from jaxgaze._batching import frame_sharding
 from jaxgaze.bias import gaze_angles_to_direction, head_to_world
 from jaxgaze.cone import sample_gaze_directions
 from jaxgaze.geometry import angle_between, unit
@@ -396,7 +399,9 @@ def fit_joint(
             ``learning_rate``; long recordings). A
             mean-field posterior ignores correlations, so its intervals are narrower
             than NUTS's: use it for point estimates and memberships, NUTS on a window
-            for intervals.
+            for intervals. SVI splits the frames over every local device (a
+            ``NamedSharding`` of the frame axis), with the one-device answer up to
+            float rounding (``docs/runtime.md``).
         num_warmup, num_samples, num_chains: NUTS settings (``num_samples`` draws are
             also taken from the SVI posterior).
         prior: a :class:`JointPrior`.
@@ -506,6 +511,65 @@ def mean_field_guide(*model_args, start: dict, **model_kwargs):
         numpyro.sample(site, fn.to_event(value.ndim) if value.ndim else fn)
 
 
+def _svi_arrays(arrays: ModelArrays) -> ModelArrays:
+    """SVI's copy of the model's arrays: frames padded to whole blocks, the frame axis split over the local devices.
+
+    The ``T`` frames are padded to ``B·L`` (``B = ⌈T / L⌉`` blocks of ``L`` =
+    :data:`~jaxgaze.joint.BLOCK_FRAMES`) with copies of the last frame in which nobody
+    is present. Such a frame only ends the last block, where the model already pads
+    with unobserved frames: the chain moves on without an observation and adds
+    ``log Σ_j p(z_t = j | g_<t) = log 1 = 0``, so the likelihood, the block count and
+    the subsampling are unchanged (up to float rounding). With ``D > 1`` local devices
+    the eight frame-axis leaves are split over a ``Mesh`` of ``gcd(D, B·L)`` of them
+    (``NamedSharding(mesh, PartitionSpec("frames"))``; ``gcd(D, B·L) = D`` for ``D``
+    a divisor of 64), the others replicated. A step then gathers its blocks from the
+    devices that hold them (one all-reduce) and evaluates their ELBO on every device.
+    The padding is the same for every ``D``, so one device and many run the same model
+    on the same arrays.
+    """
+    T = arrays.present.shape[0]
+    frames = -(-T // BLOCK_FRAMES) * BLOCK_FRAMES
+    padded = ModelArrays(*(jnp.concatenate([a, jnp.repeat(a[-1:], frames - T, axis=0)]) for a in arrays[:8]),
+                         *arrays[8:])
+    padded = padded._replace(present=padded.present.at[T:].set(False))
+    devices = jax.local_devices()[: math.gcd(jax.local_device_count(), frames)]
+    if len(devices) == 1:
+        return padded
+    sharding = frame_sharding(devices)
+    return ModelArrays(*jax.device_put(list(padded[:8]), sharding),
+                       *jax.device_put(list(padded[8:]), NamedSharding(sharding.mesh, PartitionSpec())))
+
+
+def _svi_run(svi: SVI, key, arrays: ModelArrays, num_steps: int, progress: bool):
+    """``svi.run(key, num_steps, *arrays)``, compiled with the arrays as arguments: the last state and the losses.
+
+    ``SVI.run`` closes over the arrays, and jit makes a closed-over array a replicated
+    constant; as arguments they keep their sharding. The start and the steps are one
+    program (one per step under a progress bar), so the start's trace of the model,
+    which only looks for its parameters, is compiled away instead of run op by op.
+    """
+    def init(key, arrays):
+        return svi.init(key, *arrays)
+
+    def update(state, arrays):
+        return svi.update(state, *arrays)
+
+    if not progress:
+        def run(key, arrays):
+            return jax.lax.scan(lambda state, _: update(state, arrays), init(key, arrays), None, length=num_steps)
+
+        return jax.jit(run)(key, arrays)
+    from tqdm.auto import trange
+
+    state, step, losses = jax.jit(init)(key, arrays), jax.jit(update), []
+    if isinstance(arrays.present.sharding, NamedSharding):  # a step returns the state replicated on the mesh:
+        state = jax.device_put(state, NamedSharding(arrays.present.sharding.mesh, PartitionSpec()))  # compile once
+    for _ in trange(num_steps, desc="joint SVI", file=sys.stderr):
+        state, loss = step(state, arrays)
+        losses.append(loss)
+    return state, jnp.stack(losses)
+
+
 def _svi(data, arrays, start, prior, key, key_draws, num_steps, frames_per_step, learning_rate, num_samples,
          progress):
     num_blocks = -(-data.num_frames // BLOCK_FRAMES)
@@ -513,8 +577,9 @@ def _svi(data, arrays, start, prior, key, key_draws, num_steps, frames_per_step,
     model = _model(prior, batch if batch < num_blocks else None)
     guide = functools.partial(mean_field_guide, start=start)
     svi = SVI(model, guide, numpyro.optim.Adam(learning_rate), Trace_ELBO())
-    run = svi.run(key, num_steps, *arrays, progress_bar=progress)
-    losses = np.asarray(run.losses)
+    state, losses = _svi_run(svi, key, _svi_arrays(arrays), num_steps, progress)
+    params = svi.get_params(state)
+    losses = np.asarray(losses)
     tail = max(10, num_steps // 10)
     last, before = losses[-tail:], losses[-2 * tail: -tail]
     change = float(np.mean(last) - np.mean(before))
@@ -525,7 +590,7 @@ def _svi(data, arrays, start, prior, key, key_draws, num_steps, frames_per_step,
         result = RESULTS.max_steps_reached
     else:
         result = RESULTS.successful
-    draws = Predictive(guide, params=run.params, num_samples=num_samples)(key_draws, *arrays)
+    draws = Predictive(guide, params=params, num_samples=num_samples)(key_draws, *arrays)
     latent = {k: np.asarray(v)[None] for k, v in draws.items() if k in start}
     if "concurrence_offset" in latent:
         centres = arrays.location_centres

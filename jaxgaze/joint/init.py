@@ -171,7 +171,9 @@ def initial_concurrences(
     ``max_concurrences``. Returns ``(centres (W, K, 3), support (K,))``.
     """
     frames = np.arange(0, data.num_frames, stride)
-    found = find_concurrences_over_frames(rays[frames], options, progress=progress)
+    # Frames a stride apart are no recording to warm-start (the default decides for consecutive ones).
+    found = find_concurrences_over_frames(rays[frames], options, progress=progress,
+                                          warm_start=None if stride == 1 else False)
     valid = np.asarray(found.valid)
     locations = np.asarray(found.locations)
     membership = np.asarray(found.membership)  # (F, P): each ray's mode, −1 for none

@@ -119,7 +119,7 @@ def grid():
     mask = np.concatenate([d[2] for d in data])
     bandwidth = np.concatenate([np.full(d[2].shape, sigma * factor) for d, (sigma, factor) in zip(data, cells)])
     rays = jg.GazeRays(origins, directions, bandwidth.astype(np.float32), mask)
-    found = jg.find_concurrences_over_frames(rays)
+    found = jg.find_concurrences_over_frames(rays, warm_start=False)  # independent scenes, not a recording
     out = {}
     starts = np.cumsum([0] + [len(d[0]) for d in data])
     for i, cell in enumerate(cells):

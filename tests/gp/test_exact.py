@@ -251,13 +251,15 @@ def test_fit_float32_data_with_both_methods():
     np.testing.assert_allclose(fits[0].log_marginal_likelihood, fits[1].log_marginal_likelihood, atol=0.05)
 
 
+@pytest.mark.parametrize("n", [57, 520])
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
-def test_upper_inverse_from_cholesky_is_the_triangle_of_the_inverse(x64, dtype):
-    from jaxgaze.gp.exact import _trace_weights, _upper_inverse_from_cholesky
+def test_upper_inverse_from_cholesky_is_the_triangle_of_the_inverse(x64, dtype, n):
+    # n = 57 takes XLA's triangular solves, n = 520 LAPACK potri in a host callback (CPU).
+    from jaxgaze.gp.exact import _HOST_POTRI_MIN_SIZE, _trace_weights, _upper_inverse_from_cholesky
 
     rng = np.random.default_rng(3)
-    A = rng.normal(size=(57, 57))
-    K = A @ A.T + 57 * np.eye(57)
+    A = rng.normal(size=(n, n))
+    K = A @ A.T + n * np.eye(n)
     L = jnp.linalg.cholesky(jnp.asarray(K, dtype))
     upper = np.asarray(jax.jit(_upper_inverse_from_cholesky)(L))
     assert upper.dtype == np.dtype(dtype)
@@ -265,13 +267,16 @@ def test_upper_inverse_from_cholesky_is_the_triangle_of_the_inverse(x64, dtype):
     np.testing.assert_array_equal(np.tril(upper, -1), 0.0)
     np.testing.assert_allclose(upper, np.triu(np.linalg.inv(K)), **tol)
     # The trace weights give tr(K⁻¹ S) for a symmetric S.
-    S = rng.normal(size=(57, 57))
+    S = rng.normal(size=(n, n))
     S = S + S.T
     weights = np.asarray(_trace_weights(jnp.asarray(upper)))
     np.testing.assert_allclose(np.vdot(weights, S), np.trace(np.linalg.solve(K, S)), **tol)
     assert np.isnan(np.asarray(_upper_inverse_from_cholesky(L.at[5, 5].set(0.0)))).all()
     batched = jax.vmap(_upper_inverse_from_cholesky)(jnp.stack([L, 2 * L]))
     np.testing.assert_allclose(batched[1], upper / 4, rtol=1e-5 if dtype == "float32" else 1e-12)
+    # Only the large size has a host callback: JAX's persistent cache stores no program that has one.
+    host_call = jax.default_backend() == "cpu" and n >= _HOST_POTRI_MIN_SIZE
+    assert ("callback" in jax.jit(_upper_inverse_from_cholesky).lower(L).as_text()) == host_call
 
 
 def test_lml_hessian_matches_finite_differences_of_the_gradient(x64):
@@ -330,20 +335,22 @@ def test_fit_progress_bar_counts_evaluations_and_changes_nothing(monkeypatch, ca
             self.count += n
             return super().update(n)
 
-    X, y, _ = _data(n=150)
-    X, y = X.astype(np.float32), y.astype(np.float32)  # one stage, float32 (fewer programs to compile)
-    kernel = gp.RBF() + gp.White(0.1)
+    # The data, kernel and restarts of test_fit_float32_data_with_both_methods: one float32 stage,
+    # whose programs that test has compiled already.
+    X, y, _ = _data(n=80, d=2, seed=3)
+    X, y = X.astype(np.float32), y.astype(np.float32)
+    kernel = gp.RBF() + gp.White(1.0)
     monkeypatch.setattr(exact, "tqdm", RecordingBar)
     quiet = gp.fit(kernel, X, y, key=jax.random.key(2), num_restarts=2)
     assert RecordingBar.made[0].disable and capsys.readouterr().err == ""  # no bar shown without progress
     shown = gp.fit(kernel, X, y, key=jax.random.key(2), num_restarts=2, progress=True)
-    assert shown.stages == quiet.stages == ((150, "float32", shown.stages[0][2]),)
+    assert shown.stages == quiet.stages == ((80, "float32", shown.stages[0][2]),)
     assert float(shown.log_marginal_likelihood) == float(quiet.log_marginal_likelihood)
     bar = RecordingBar.made[1]
-    assert bar.descriptions == ["GP fit, stage 1/1 (150 points, float32)"]
+    assert bar.descriptions == ["GP fit, stage 1/1 (80 points, float32)"]
     # One evaluation per optimiser step, plus each start's own and its float32 re-evaluation.
     assert shown.stages[0][2] < bar.count <= shown.stages[0][2] + 2 * 2
-    assert "GP fit, stage 1/1 (150 points, float32): " in capsys.readouterr().err
+    assert "GP fit, stage 1/1 (80 points, float32): " in capsys.readouterr().err
     assert exact._progress_bar is None
 
 

@@ -109,20 +109,27 @@ def _column(c, P):
     return 4 if c == "e" else c  # the tiny scene: P = 3 people, K = 1 concurrence
 
 
+# Compiled once per shape: op-by-op (eager) calls of the model compile every primitive
+# anew for each shape, which costs seconds.
+_marginal_log_likelihood = jax.jit(marginal_log_likelihood)
+_candidate_log_probabilities = jax.jit(candidate_log_probabilities)
+_target_marginals = jax.jit(target_marginals)
+
+
 def test_marginal_matches_brute_force_enumeration(x64):
     data, centres, params = _tiny(T=3)
     arrays = _arrays(data, centres, jnp.float64)
     jparams = jax.tree_util.tree_map(jnp.asarray, params)
     expected, terms, marginals = _brute_force(data, params)
-    assert float(jnp.sum(jax.jit(marginal_log_likelihood)(jparams, arrays))) == pytest.approx(expected, rel=1e-10)
+    assert float(jnp.sum(_marginal_log_likelihood(jparams, arrays))) == pytest.approx(expected, rel=1e-10)
     # one frame's candidates, order: people, concurrences, elsewhere
-    lp = np.asarray(jax.jit(candidate_log_probabilities)(jparams, arrays))
+    lp = np.asarray(_candidate_log_probabilities(jparams, arrays))
     g = terms[0, 1]  # frame 0, person 1
     assert lp[0, 1, 1] == -np.inf
     for c in (0, 3, "e"):
         assert lp[0, 1, _column(c, 3)] == pytest.approx(sum(g[c]), rel=1e-10)
     # the smoothed target posterior
-    m = np.asarray(jax.jit(target_marginals)(jparams, arrays))
+    m = np.asarray(_target_marginals(jparams, arrays))
     for (t, i, c), value in marginals.items():
         assert m[t, i, _column(c, 3)] == pytest.approx(value, rel=1e-8, abs=1e-12)
     # the model's factor is the same sum
@@ -130,8 +137,9 @@ def test_marginal_matches_brute_force_enumeration(x64):
               "alpha_object": params["alpha_object"], "speaker_effect": params["speaker_effect"],
               "stay": params["stay"],
               "concurrence_offset": (params["locations"][0] - centres[0]) / JointPrior().location_scale}
-    trace = handlers.trace(handlers.substitute(joint_model, latent)).get_trace(*arrays)
-    assert float(trace["gaze"]["fn"].log_factor.sum()) == pytest.approx(expected, rel=1e-10)
+    factor = jax.jit(lambda z: handlers.trace(handlers.substitute(joint_model, z)).get_trace(*arrays)["gaze"]["fn"]
+                     .log_factor.sum())(latent)
+    assert float(factor) == pytest.approx(expected, rel=1e-10)
 
 
 def test_blocks_restart_the_chain(x64):
@@ -139,8 +147,8 @@ def test_blocks_restart_the_chain(x64):
     data, centres, params = _tiny(seed=5, T=BLOCK_FRAMES + 6)
     arrays = _arrays(data, centres, jnp.float64)
     jparams = jax.tree_util.tree_map(jnp.asarray, params)
-    lp = np.asarray(candidate_log_probabilities(jparams, arrays))
-    loose = float(jnp.sum(marginal_log_likelihood({**jparams, "stay": jnp.asarray(0.0)}, arrays)))
+    lp = np.asarray(_candidate_log_probabilities(jparams, arrays))
+    loose = float(jnp.sum(_marginal_log_likelihood({**jparams, "stay": jnp.asarray(0.0)}, arrays)))
     assert loose == pytest.approx(float(np.sum(jax.scipy.special.logsumexp(lp, axis=-1))), rel=1e-9)
     prior, lik, d, w = (np.asarray(a) for a in jax.jit(_candidate_terms)(jparams, arrays, JointPrior()))
     # a glance elsewhere held over the block: its first frame's density, then each frame around the last
@@ -151,7 +159,7 @@ def test_blocks_restart_the_chain(x64):
         total = lik[block].sum(0)
         total[:, -1] = lik[start, :, -1] + held[start: start + BLOCK_FRAMES - 1].sum(0)
         expected += float(np.sum(jax.scipy.special.logsumexp(prior[start] + total, axis=-1)))
-    held = float(jnp.sum(marginal_log_likelihood({**jparams, "stay": jnp.asarray(1.0)}, arrays)))
+    held = float(jnp.sum(_marginal_log_likelihood({**jparams, "stay": jnp.asarray(1.0)}, arrays)))
     assert held == pytest.approx(expected, rel=1e-6)
 
 
@@ -165,14 +173,14 @@ def test_absent_people_are_no_candidates_and_add_nothing(x64):
                         speaking=data.speaking, measurement_scale=data.measurement_scale, fps=5.0)
     arrays = _arrays(masked, centres, jnp.float64)
     jparams = jax.tree_util.tree_map(jnp.asarray, params)
-    lp = np.asarray(jax.jit(candidate_log_probabilities)(jparams, arrays))
+    lp = np.asarray(_candidate_log_probabilities(jparams, arrays))
     assert np.all(lp[0, [0, 1, 3], 2] == -np.inf)  # nobody looks at the absent person
-    m = np.asarray(jax.jit(target_marginals)(jparams, arrays))
+    m = np.asarray(_target_marginals(jparams, arrays))
     assert np.all(m[0, 2] == 0.0) and np.all(m[0, [0, 1, 3], 2] == 0.0)
     np.testing.assert_allclose(m[present].sum(-1), 1.0, rtol=1e-10)
     # the absent frame moves the chain on without an observation: the brute force agrees
     expected, _, marginals = _brute_force(masked, {**params})
-    assert float(jnp.sum(marginal_log_likelihood(jparams, arrays))) == pytest.approx(expected, rel=1e-10)
+    assert float(jnp.sum(_marginal_log_likelihood(jparams, arrays))) == pytest.approx(expected, rel=1e-10)
     assert m[1, 2, 0] == pytest.approx(marginals[1, 2, 0], rel=1e-8)
 
 
