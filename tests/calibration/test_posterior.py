@@ -35,8 +35,10 @@ def errors(post):
 
 @pytest.fixture(scope="module")
 def posterior():
+    # 800 draws: at 300 (and 400) two of five keys end below the tail ESS of 100 that counts as mixed
+    # (tail ESS 50–73), so the success asserted below hung on the key; at 800 the lowest of keys 1–3 is 121.
     return calibrate_cone_posterior(wearer_points(jax.random.key(0)), key=jax.random.key(1),
-                                    num_warmup=300, num_samples=300)
+                                    num_warmup=300, num_samples=800)
 
 
 def test_posterior_recovers_the_true_ray(posterior):
