@@ -1268,9 +1268,9 @@ def _unexplained(rays: GazeRays, found: Concurrences, bounds: Float[Array, "2 3"
     safe = jnp.where(parallel, 1.0, denom)
     s = (b * e_j - d_i) / safe  # depth along ray i of its point closest to ray j
     t = (e_j - b * d_i) / safe  # … and along ray j
-    m = 0.5 * ((p[:, None, :] + s[..., None] * v[:, None, :]) + (p[None, :, :] + t[..., None] * v[None, :, :]))
-    gap = jnp.linalg.norm((p[:, None, :] + s[..., None] * v[:, None, :]) - (p[None, :, :] + t[..., None] * v[None, :, :]),
-                          axis=-1)
+    on_i = p[:, None, :] + s[..., None] * v[:, None, :]  # the two closest points
+    on_j = p[None, :, :] + t[..., None] * v[None, :, :]
+    m, gap = 0.5 * (on_i + on_j), jnp.linalg.norm(on_i - on_j, axis=-1)
     # The perspective distance of m from each ray is gap/2 at depth s (or t).
     close = (0.5 * gap < claim_radius * h[:, None] * s) & (0.5 * gap < claim_radius * h[None, :] * t)
     inside = jnp.all((m >= bounds[0]) & (m <= bounds[1]), axis=-1)
