@@ -33,7 +33,9 @@ from jaxgaze.runtime import enable_compilation_cache
 from jaxgaze.rays import GazeRays
 from jaxgaze.results import RESULTS, FitError
 from jaxgaze.cone import (
+    LookingAtEachOther,
     cone_log_density,
+    looking_at_each_other,
     max_intensity_projection,
     ray_kernels,
     saliency_field,
@@ -99,6 +101,8 @@ __all__ = [
     "saliency_field",
     "saliency_field_grid",
     "max_intensity_projection",
+    "looking_at_each_other",
+    "LookingAtEachOther",
     # runtime: the persistent compilation cache
     "runtime",
     "enable_compilation_cache",

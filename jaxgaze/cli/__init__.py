@@ -1,8 +1,9 @@
-"""Command-line interface: ``jaxgaze demo``, ``concurrences``, ``calibrate``, ``bias``, ``joint``, ``attend`` and ``fit-gaze``.
+"""Command-line interface: ``jaxgaze demo``, ``concurrences``, ``convert``, ``calibrate``, ``bias``, ``joint``, ``attend`` and ``fit-gaze``.
 
 One module per command, each ``read (jaxgaze.io) → library call → write (jaxgaze.io) → one
 summary line``: :mod:`~jaxgaze.cli.demo` (a simulated scene, ``--scene``, against the truth),
-:mod:`~jaxgaze.cli.concurrences` (gaze concurrences, Park et al. 2012),
+:mod:`~jaxgaze.cli.concurrences` (gaze concurrences, Park et al. 2012), :mod:`~jaxgaze.cli.convert`
+(another gaze tool's output as rays),
 :mod:`~jaxgaze.cli.calibrate` (a wearer's gaze ray), :mod:`~jaxgaze.cli.bias` (speaker-prior
 gaze bias, Siegfried et al. 2017), :mod:`~jaxgaze.cli.joint` (biases, cone widths, who looks at whom
 and concurrences of a group, inferred together), :mod:`~jaxgaze.cli.attend` and
@@ -16,7 +17,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from jaxgaze.cli import attend, bias, calibrate, concurrences, demo, fit_gaze, joint
+from jaxgaze.cli import attend, bias, calibrate, concurrences, convert, demo, fit_gaze, joint
 from jaxgaze.cli._common import negative_values_joined, run_command
 from jaxgaze.cli._interrupt import exit_status, handle_interrupts
 from jaxgaze.runtime import enable_compilation_cache
@@ -24,7 +25,7 @@ from jaxgaze.runtime import enable_compilation_cache
 __all__ = ["main", "console_main", "build_parser"]
 
 #: The command modules, in the order of ``jaxgaze --help``.
-COMMANDS = (demo, concurrences, calibrate, bias, joint, attend, fit_gaze)
+COMMANDS = (demo, concurrences, convert, calibrate, bias, joint, attend, fit_gaze)
 
 
 def build_parser() -> argparse.ArgumentParser:

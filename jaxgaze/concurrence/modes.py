@@ -862,9 +862,17 @@ def _concurrences_from_seeds(
         out = jax.lax.map(one, (split(active),) + tuple(split(x) for x in xs))
         return jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:])[:max_modes], out)
 
-    def refine(members, x0):
-        return over_modes(lambda m, x: _refine_and_laplace(rays, m, x, prior_scale, refine_steps), members, x0,
-                          active=jnp.any(members, axis=1))
+    def refine(members, x0, before=None):
+        """Refine every slot with members; with ``before = (members, outputs)`` of an earlier refinement, a
+        slot whose members did not change keeps its outputs (the maximum-likelihood location of the same
+        rays, reached again from a start near it), and only the changed slots are refined."""
+        changed = jnp.ones(max_modes, bool) if before is None else jnp.any(members != before[0], axis=1)
+        out = over_modes(lambda m, x: _refine_and_laplace(rays, m, x, prior_scale, refine_steps), members, x0,
+                         active=changed & jnp.any(members, axis=1))
+        if before is None:
+            return out
+        pick = lambda new, old: jnp.where(changed.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)  # noqa: E731
+        return jax.tree_util.tree_map(pick, out, before[1])
     slots = jnp.arange(max_modes)[:, None]
 
     # Claims at the user's bandwidth give a first estimate of how much wider the
@@ -873,28 +881,33 @@ def _concurrences_from_seeds(
     # bandwidth times max(1, ĉ/1.25), so that a bandwidth too small for the rays
     # does not cut off the tail of each concurrence's residuals (which would make
     # its noise scale, and its covariance, too small). With ĉ ≤ 1.25 nothing changes.
-    membership, modes, _, valid = claim(search_proj)
+    membership, modes, mode_conv, valid = claim(search_proj)
     initial = (membership[None, :] == slots) & valid[:, None]
-    first = refine(initial, modes)[0]
-    dist, _ = jax.vmap(lambda x: _whitened_distances(search_proj, x))(first)
+    refined = refine(initial, modes)
+    dist, _ = jax.vmap(lambda x: _whitened_distances(search_proj, x))(refined[0])
     ratio = _robust_noise_ratio(dist * search_scale, initial)
     widen = jnp.maximum(1.0, ratio / _CLAIM_RATIO_MARGIN)
     wide_proj = ray_projector(eqx.tree_at(lambda r: r.bandwidth, search, search.bandwidth * widen))
-    membership, modes, mode_conv, valid = claim(wide_proj)
+    # With ĉ ≤ 1.25 the claims at the wider radius are the same claims: skip them.
+    membership, modes, mode_conv, valid = jax.lax.cond(
+        widen > 1.0, lambda: claim(wide_proj), lambda: (membership, modes, mode_conv, valid))
 
     # The mixture mode sits where a subset of rays crosses tightly, so a true
     # member with a large residual can lie outside the claim radius there. Claim
     # the still-unclaimed rays again at each mode's refined (maximum-likelihood)
     # location, nearest mode first, and refine once more. These claims cannot merge
     # groups, so their radius takes the whole ratio ĉ.
-    first = refine(membership[None, :] == slots, modes)[0]
+    member_mask = membership[None, :] == slots
+    refined = refine(member_mask, modes, (initial, refined))
+    first = refined[0]
     dist, ok = jax.vmap(lambda x: _whitened_distances(search_proj, x))(first)
     dist = jnp.where(valid[:, None] & ok & (dist < claim_bandwidths * ratio), dist, jnp.inf)
     nearest = jnp.argmin(dist, axis=0)
     late = (membership < 0) & jnp.isfinite(jnp.min(dist, axis=0))
     membership = jnp.where(late, nearest, membership)
-    member_mask = membership[None, :] == slots
-    second = refine(member_mask, first)[0]
+    before, member_mask = member_mask, membership[None, :] == slots
+    refined = refine(member_mask, first, (before, refined))
+    second = refined[0]
     # A wide search radius can also take in a stray ray of another group. Drop
     # members that the cone model rejects at the refined location
     # (‖d‖ > prune_bandwidths · ĉ h, ĉ the frame's robust noise ratio, at least 1),
@@ -903,8 +916,8 @@ def _concurrences_from_seeds(
     stray = member_mask & (dist > _PRUNE_BANDWIDTHS * _robust_noise_ratio(dist, member_mask & valid[:, None]))
     member_mask = member_mask & ~stray
     valid = valid & (jnp.sum(member_mask, axis=1) >= min_rays) & inside(second) & ~only_a_pair(member_mask)
-    member_mask = member_mask & valid[:, None]
-    locations, covariances, dof, bounded = refine(member_mask, second)
+    before, member_mask = member_mask | stray, member_mask & valid[:, None]
+    locations, covariances, dof, bounded = refine(member_mask, second, (before, refined))
     # A mode the rays do not bound (the prior holds it along some direction) is no concurrence.
     valid = valid & bounded
     member_mask = member_mask & valid[:, None]

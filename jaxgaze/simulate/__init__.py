@@ -1,6 +1,6 @@
 """Every simulator of jaxgaze, with ground truth: scenes for the social saliency field,
 calibration sessions, dyadic and multi-party conversations, table-top sessions, faces, rendered
-scenes and videos. Models never import this package.
+scenes and videos, small groups who look at each other. Models never import this package.
 """
 
 from jaxgaze.simulate.scenes import (
@@ -26,6 +26,10 @@ from jaxgaze.simulate.dyadic import (
     simulate_dyadic_sessions,
     PartnerCameraView,
     partner_camera_view,
+)
+from jaxgaze.simulate.openface_tracks import (
+    OpenFaceTracks,
+    simulate_openface_tracks,
 )
 from jaxgaze.simulate.offsets import (
     ContaminatedOffsets,
@@ -61,6 +65,19 @@ from jaxgaze.simulate.video import (
     VideoTruth,
     render_tabletop_video,
 )
+from jaxgaze.simulate.wearables import (
+    SIMULATED_T_DEVICE_CPF,
+    AriaWearers,
+    write_aria_wearers,
+)
+from jaxgaze.simulate.gaze_tools import (
+    Gaze360Outputs,
+    simulate_gaze360_outputs,
+)
+from jaxgaze.simulate.mutual import (
+    MutualGaze,
+    simulate_mutual_gaze,
+)
 
 __all__ = [
     "PRESETS",
@@ -81,6 +98,8 @@ __all__ = [
     "simulate_dyadic_sessions",
     "PartnerCameraView",
     "partner_camera_view",
+    "OpenFaceTracks",
+    "simulate_openface_tracks",
     "ContaminatedOffsets",
     "simulate_offsets",
     "ConversationConfig",
@@ -103,4 +122,11 @@ __all__ = [
     "render_tabletop_scene",
     "VideoTruth",
     "render_tabletop_video",
+    "SIMULATED_T_DEVICE_CPF",
+    "AriaWearers",
+    "write_aria_wearers",
+    "Gaze360Outputs",
+    "simulate_gaze360_outputs",
+    "MutualGaze",
+    "simulate_mutual_gaze",
 ]

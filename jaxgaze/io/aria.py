@@ -1,0 +1,520 @@
+"""Project Aria Machine Perception Services (MPS) → world-frame gaze rays, one folder per wearer.
+
+**Input.** Each wearer is a folder holding MPS's ``general_eye_gaze.csv`` and
+``closed_loop_trajectory.csv``, side by side or in MPS's own layout (``eye_gaze/`` and ``slam/``);
+a path may also name the gaze CSV itself. ``read_aria([wearer_a, wearer_b, …])`` puts every
+wearer's rays in the one world of their trajectories; person names are the folder names (or
+``persons``).
+
+**Gaze (CPF).** The eye gaze is in the Central Pupil Frame: origin between the eyes, X left, Y up,
+Z forward (projectaria_tools docs, "3D Coordinate Frame Conventions"). The direction of
+``(yaw, pitch)`` is projectaria_tools' ``getUnitVectorFromYawPitch``: ``normalise(tan yaw,
+tan pitch, 1)``, so yaw is positive to the wearer's left and pitch positive up. In our axes
+(+x forward, +y left, +z up) that is ``R_OURS_FROM_CPF @ v_cpf``. Three schemas are read, as
+``readEyeGaze`` / ``readEyeGazeVergence`` read them:
+
+* legacy: ``yaw_rads_cpf, pitch_rads_cpf`` with ``yaw_/pitch_low|high_rads_cpf`` bounds;
+* vergence (Gen1): ``left_yaw_rads_cpf, right_yaw_rads_cpf, pitch_rads_cpf`` with per-eye yaw bounds
+  and the eye origins ``t{x,y,z}_{left,right}_eye_cpf``. The combined yaw is
+  ``computeDepthAndCombinedGazeDirection``'s ``atan(x/z)`` of the two rays' intersection, which is
+  ``atan((tan left + tan right) / 2)``;
+* Gen2: a combined ``yaw_rads_cpf`` next to the per-eye columns, no bounds.
+
+The ray's origin is the midpoint of the eye origins when the file has them, else the CPF origin.
+
+**Bandwidth.** MPS gives each angle an interval ``[low, high]`` containing it; its level is not
+documented, and we read it as a central :data:`INTERVAL_COVERAGE` (80 %) interval of a normal
+error, the 10 %/90 % quantile pair of quantile-loss gaze models such as Gaze360. So the sd of an
+angle is ``(high − low) / (2 z)`` with ``z = Φ⁻¹(0.9) = 1.2816``; a combined yaw takes the mean of
+the two eyes' sds; and ``h = √((σ_yaw² + σ_pitch²) / 2)``, the per-axis sd whose cone has the
+same mean squared offset. Rows without bounds get :data:`DEFAULT_BANDWIDTH_ARIA`; widths beyond
+:data:`MAX_BANDWIDTH_ARIA` (blinks) are clipped to it, with a warning that counts them.
+
+**World.** ``x_world = T_world_device · T_device_cpf · x_cpf`` with ``T_world_device`` the
+trajectory's ``t{x,y,z}_world_device`` and Hamilton quaternion ``q{x,y,z,w}_world_device``
+(gravity-aligned world, z up: our world convention), interpolated to each gaze timestamp
+(translation linearly, rotation by slerp between the two nearest poses; a gaze sample outside
+the trajectory or in a gap longer than ``max_pose_gap_s`` is dropped, with a warning).
+``T_device_cpf`` comes from the device calibration (projectaria_tools
+``DeviceCalibration.get_transform_device_cpf()``; :func:`read_aria_device_cpf` reads it from a
+VRS file with the ``aria`` extra). Without it the reader uses the identity, i.e. takes the device
+frame (the left SLAM camera) as the CPF, and warns: directions are then off by that camera's
+mounting angle. A wearer folder without a trajectory gives rays in its own CPF (our axes), or in
+the world of ``camera`` (the CPF's poses, one wearer only).
+
+**Frames.** One time grid for all wearers: ``frame = round((t − start_ns) · fps / 1e9)``,
+``start_ns`` by default the earliest gaze sample, one sample per frame (the nearest to the frame's
+time). ``tracking_timestamp_us`` is each device's own clock, so several wearers are put on a
+shared clock through the trajectory's ``utc_timestamp_ns`` (``clock="utc"``, the default for
+several wearers: ``t = tracking · 1000 + median(utc − tracking · 1000)``); ``clock="device"``
+(the default for one) uses the device clock as it is. Trajectories of different ``graph_uid``
+are in different worlds, which draws a warning.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from typing import Optional, Sequence
+
+import numpy as np
+
+from jaxgaze.io.gaze_tools import bandwidth_from_mean_angular_error, camera_rays_to_world, require_extra
+from jaxgaze.io.poses import check_quaternion
+from jaxgaze.io.pupil import as_paths, frames_on_grid, person_rays, wearer_names
+from jaxgaze.io.rays import RayRecording, stack_rays
+from jaxgaze.io.text import InputFileError, format_float, read_csv_table, write_csv_rows
+from jaxgaze.poses import CameraPoses
+
+__all__ = [
+    "GAZE_FILE",
+    "TRAJECTORY_FILE",
+    "LEGACY_GAZE_COLUMNS",
+    "VERGENCE_GAZE_COLUMNS",
+    "TRAJECTORY_COLUMNS",
+    "R_OURS_FROM_CPF",
+    "INTERVAL_COVERAGE",
+    "DEFAULT_BANDWIDTH_ARIA",
+    "MAX_BANDWIDTH_ARIA",
+    "ARIA_FPS",
+    "aria_gaze_to_direction",
+    "direction_to_aria_gaze",
+    "read_aria",
+    "write_aria",
+    "read_aria_device_cpf",
+]
+
+GAZE_FILE = "general_eye_gaze.csv"
+TRAJECTORY_FILE = "closed_loop_trajectory.csv"
+#: projectaria_tools ``kEyeGazeColumns`` (``EyeGazeReader.cpp``): the legacy schema (also what :func:`write_aria` writes).
+LEGACY_GAZE_COLUMNS = (
+    "tracking_timestamp_us", "yaw_rads_cpf", "pitch_rads_cpf", "depth_m", "yaw_low_rads_cpf", "pitch_low_rads_cpf",
+    "yaw_high_rads_cpf", "pitch_high_rads_cpf", "session_uid",
+)
+#: projectaria_tools ``kEyeGazeVergenceColumns``: the Gen1 vergence schema and the Gen2 extras.
+VERGENCE_GAZE_COLUMNS = (
+    "tracking_timestamp_us", "left_yaw_rads_cpf", "right_yaw_rads_cpf", "pitch_rads_cpf", "depth_m",
+    "left_yaw_low_rads_cpf", "right_yaw_low_rads_cpf", "pitch_low_rads_cpf", "left_yaw_high_rads_cpf",
+    "right_yaw_high_rads_cpf", "pitch_high_rads_cpf", "tx_left_eye_cpf", "ty_left_eye_cpf", "tz_left_eye_cpf",
+    "tx_right_eye_cpf", "ty_right_eye_cpf", "tz_right_eye_cpf", "session_uid", "yaw_rads_cpf",
+    "left_pitch_rads_cpf", "right_pitch_rads_cpf",
+)
+#: projectaria_tools ``kCloseLoopTrajectoryColumns`` (``TrajectoryReaders.cpp``).
+TRAJECTORY_COLUMNS = (
+    "graph_uid", "tracking_timestamp_us", "utc_timestamp_ns", "tx_world_device", "ty_world_device", "tz_world_device",
+    "qx_world_device", "qy_world_device", "qz_world_device", "qw_world_device", "device_linear_velocity_x_device",
+    "device_linear_velocity_y_device", "device_linear_velocity_z_device", "angular_velocity_x_device",
+    "angular_velocity_y_device", "angular_velocity_z_device", "gravity_x_world", "gravity_y_world", "gravity_z_world",
+    "quality_score",
+)
+#: ``v_ours = R_OURS_FROM_CPF @ v_cpf``: CPF X left, Y up, Z forward → ours x forward, y left, z up.
+R_OURS_FROM_CPF = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+R_OURS_FROM_CPF.setflags(write=False)
+#: The coverage we read MPS's ``[low, high]`` gaze intervals as (not documented by Meta; module docstring).
+INTERVAL_COVERAGE = 0.8
+_Z = 1.2815515655446004  # Φ⁻¹(0.9): a central 80 % interval is ±1.2816 sd
+#: Bandwidth ``h`` of a row without bounds: a mean angular error of 2°, the level of calibration-free
+#: wearable gaze (Neon 1.8°; Meta publishes no figure for MPS general eye gaze): 0.0279 rad.
+DEFAULT_BANDWIDTH_ARIA = bandwidth_from_mean_angular_error(math.radians(2.0))
+#: The widest bandwidth a row keeps (radians, 29°; a wider interval, as in a blink, is clipped to it).
+MAX_BANDWIDTH_ARIA = 0.5
+#: The default frame rate of the shared time grid (Hz), the simulated scenes' rate.
+ARIA_FPS = 10.0
+
+_TRAJECTORY_REQUIRED = ("tracking_timestamp_us", "tx_world_device", "ty_world_device", "tz_world_device",
+                        "qx_world_device", "qy_world_device", "qz_world_device", "qw_world_device")
+_EYES = ("tx_left_eye_cpf", "ty_left_eye_cpf", "tz_left_eye_cpf", "tx_right_eye_cpf", "ty_right_eye_cpf",
+         "tz_right_eye_cpf")
+
+
+# ---------------------------------------------------------------------------
+# Angles, rotations
+
+
+def aria_gaze_to_direction(yaw, pitch) -> np.ndarray:
+    """MPS ``(yaw, pitch)`` (radians, CPF) → unit directions ``(..., 3)`` in our axes of the CPF
+    (+x forward, +y left, +z up): ``getUnitVectorFromYawPitch``'s ``normalise(tan yaw, tan pitch, 1)``
+    in CPF axes, i.e. ``normalise(1, tan yaw, tan pitch)`` in ours."""
+    yaw, pitch = np.broadcast_arrays(np.asarray(yaw, np.float64), np.asarray(pitch, np.float64))
+    v = np.stack([np.ones_like(yaw), np.tan(yaw), np.tan(pitch)], axis=-1)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def direction_to_aria_gaze(directions) -> tuple[np.ndarray, np.ndarray]:
+    """The inverse of :func:`aria_gaze_to_direction`: ``yaw = atan(left / forward)``,
+    ``pitch = atan(up / forward)``; a direction not in front of the CPF is a ``ValueError``."""
+    v = np.asarray(directions, dtype=np.float64)
+    if np.any(v[..., 0] <= 0):
+        raise ValueError("a gaze direction points sideways or behind the wearer (forward component ≤ 0): "
+                         "MPS yaw/pitch cannot express it")
+    return np.arctan(v[..., 1] / v[..., 0]), np.arctan(v[..., 2] / v[..., 0])
+
+
+def _quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Hamilton quaternions ``(M, 4)`` as ``(x, y, z, w)`` (unit) → ``(M, 3, 3)``."""
+    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], axis=-2)
+
+
+def _matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
+    """``(M, 3, 3)`` rotations → Hamilton quaternions ``(M, 4)`` as ``(x, y, z, w)`` with ``w ≥ 0``."""
+    out = np.empty((len(R), 4))
+    for i, m in enumerate(R):
+        trace = np.trace(m)
+        if trace > 0:
+            s = 2.0 * math.sqrt(trace + 1.0)
+            q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
+        else:
+            k = int(np.argmax(np.diag(m)))
+            i1, i2 = (k + 1) % 3, (k + 2) % 3
+            s = 2.0 * math.sqrt(1.0 + m[k, k] - m[i1, i1] - m[i2, i2])
+            q = [0.0, 0.0, 0.0, (m[i2, i1] - m[i1, i2]) / s]
+            q[k], q[i1], q[i2] = 0.25 * s, (m[i1, k] + m[k, i1]) / s, (m[i2, k] + m[k, i2]) / s
+        q = np.asarray(q)
+        out[i] = q if q[3] >= 0 else -q
+    return out
+
+
+def _slerp(q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Spherical interpolation of unit quaternions ``(M, 4)`` at fractions ``s (M,)`` (shortest arc)."""
+    dot = np.sum(q0 * q1, axis=1)
+    q1 = np.where(dot[:, None] < 0, -q1, q1)
+    dot = np.abs(dot)
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    small = theta < 1e-8
+    sin = np.where(small, 1.0, np.sin(theta))
+    w0 = np.where(small, 1.0 - s, np.sin((1.0 - s) * theta) / sin)
+    w1 = np.where(small, s, np.sin(s * theta) / sin)
+    q = w0[:, None] * q0 + w1[:, None] * q1
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _as_transform(T, name: str) -> np.ndarray:
+    T = np.eye(4) if T is None else np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4) or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-6) \
+            or not np.allclose(T[3], [0, 0, 0, 1]) or np.linalg.det(T[:3, :3]) < 0:
+        raise ValueError(f"{name} must be a 4×4 rigid transform (rotation and translation), got {T!r}")
+    return T
+
+
+# ---------------------------------------------------------------------------
+# Reading
+
+
+def _wearer_files(path) -> tuple[str, Optional[str]]:
+    """The gaze CSV and the trajectory CSV (or None) of a wearer folder (or of its gaze CSV)."""
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        for gaze in (os.path.join(path, GAZE_FILE), os.path.join(path, "eye_gaze", GAZE_FILE)):
+            if os.path.isfile(gaze):
+                break
+        else:
+            raise InputFileError(f"no {GAZE_FILE} in this wearer folder (nor in its eye_gaze/)", path)
+    else:
+        gaze = path
+    folder = os.path.dirname(os.path.abspath(gaze))
+    for trajectory in (os.path.join(folder, TRAJECTORY_FILE), os.path.join(folder, "slam", TRAJECTORY_FILE),
+                       os.path.join(os.path.dirname(folder), "slam", TRAJECTORY_FILE)):
+        if os.path.isfile(trajectory):
+            return gaze, trajectory
+    return gaze, None
+
+
+def _interval_sd(row, low: str, high: str) -> Optional[float]:
+    if not (row.table.has(low) and row.table.has(high)) or not (row.cell(low) and row.cell(high)):
+        return None
+    lo, hi = row.number(low), row.number(high)
+    if lo > hi:
+        raise row.error(f"{low} {lo:g} is above {high} {hi:g}")
+    return (hi - lo) / (2 * _Z)
+
+
+def _read_gaze(path):
+    """Device times (µs), CPF origins and directions (CPF axes) and bandwidths of one gaze CSV."""
+    table = read_csv_table(path, ("tracking_timestamp_us", "pitch_rads_cpf"),
+                           tuple(c for c in dict.fromkeys(VERGENCE_GAZE_COLUMNS + LEGACY_GAZE_COLUMNS)
+                                 if c not in ("tracking_timestamp_us", "pitch_rads_cpf")),
+                           hint=f"an Aria MPS {GAZE_FILE} (tracking_timestamp_us, pitch_rads_cpf and yaw_rads_cpf "
+                                "or left_yaw_rads_cpf and right_yaw_rads_cpf)")
+    combined = table.has("yaw_rads_cpf")
+    if not combined and not (table.has("left_yaw_rads_cpf") and table.has("right_yaw_rads_cpf")):
+        raise table.fail("missing column 'yaw_rads_cpf' (or 'left_yaw_rads_cpf' and 'right_yaw_rads_cpf') in the "
+                         "header of this eye gaze CSV")
+    eyes = all(table.has(c) for c in _EYES)
+    times, origins, tangents, bandwidth = [], [], [], []
+    clipped = defaulted = 0
+    for row in table.rows:
+        times.append(row.integer("tracking_timestamp_us"))
+        pitch = row.number("pitch_rads_cpf")
+        if combined:
+            yaws = [row.number("yaw_rads_cpf")]
+        else:
+            yaws = [row.number("left_yaw_rads_cpf"), row.number("right_yaw_rads_cpf")]
+        if max(abs(pitch), *map(abs, yaws)) >= math.pi / 2:
+            raise row.error(f"gaze angles (yaw {yaws}, pitch {pitch:g}) must lie in (−π/2, π/2) radians (degrees?)")
+        tangents.append([float(np.mean(np.tan(yaws))), math.tan(pitch)])
+        origin = np.zeros(3)
+        if eyes and all(row.cell(c) for c in _EYES):
+            origin = 0.5 * (np.array([row.number(c) for c in _EYES[:3]]) + np.array([row.number(c) for c in _EYES[3:]]))
+        origins.append(origin)
+        sd_pitch = _interval_sd(row, "pitch_low_rads_cpf", "pitch_high_rads_cpf")
+        if combined:
+            sd_yaw = _interval_sd(row, "yaw_low_rads_cpf", "yaw_high_rads_cpf")
+        else:
+            eye_sds = [_interval_sd(row, f"{eye}_yaw_low_rads_cpf", f"{eye}_yaw_high_rads_cpf")
+                       for eye in ("left", "right")]
+            sd_yaw = None if None in eye_sds else float(np.mean(eye_sds))
+        if sd_yaw is None or sd_pitch is None or sd_yaw + sd_pitch == 0:
+            h = DEFAULT_BANDWIDTH_ARIA
+            defaulted += 1
+        else:
+            h = math.sqrt((sd_yaw ** 2 + sd_pitch ** 2) / 2)
+        if h > MAX_BANDWIDTH_ARIA:
+            h = MAX_BANDWIDTH_ARIA
+            clipped += 1
+        bandwidth.append(h)
+    if clipped:
+        warnings.warn(f"{table.path}: {clipped} of {len(table.rows)} gaze rows have intervals wider than a "
+                      f"{MAX_BANDWIDTH_ARIA} rad bandwidth (blinks?): clipped to {MAX_BANDWIDTH_ARIA}", stacklevel=3)
+    if 0 < defaulted < len(table.rows):
+        warnings.warn(f"{table.path}: {defaulted} of {len(table.rows)} gaze rows have no usable yaw/pitch interval: "
+                      f"bandwidth {DEFAULT_BANDWIDTH_ARIA:.4f} rad", stacklevel=3)
+    tangents = np.asarray(tangents)
+    directions = np.stack([tangents[:, 0], tangents[:, 1], np.ones(len(tangents))], axis=1)  # CPF axes
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    times = np.asarray(times, np.int64)
+    if np.any(np.diff(times) <= 0):
+        i = int(np.argmax(np.diff(times) <= 0)) + 1
+        raise InputFileError(f"tracking_timestamp_us does not increase ({times[i - 1]} then {times[i]})", table.path,
+                             table.rows[i].line)
+    return table.path, times, np.asarray(origins), directions, np.asarray(bandwidth)
+
+
+class _Trajectory:
+    """One ``closed_loop_trajectory.csv``: device times (µs), poses, UTC offset and graph ids."""
+
+    def __init__(self, path):
+        table = read_csv_table(path, _TRAJECTORY_REQUIRED, ("utc_timestamp_ns", "graph_uid"),
+                               hint=f"an Aria MPS {TRAJECTORY_FILE} (columns " + ", ".join(_TRAJECTORY_REQUIRED) + ")")
+        times, translations, quaternions, utc = [], [], [], []
+        for row in table.rows:
+            times.append(row.integer("tracking_timestamp_us"))
+            translations.append([row.number(f"t{a}_world_device") for a in "xyz"])
+            q = [row.number(f"q{a}_world_device") for a in "xyzw"]
+            check_quaternion([q[3], *q[:3]], table.path, row.line)
+            quaternions.append(np.asarray(q) / np.linalg.norm(q))
+            utc.append(row.integer("utc_timestamp_ns") if table.has("utc_timestamp_ns") and row.cell("utc_timestamp_ns")
+                       else -1)
+        self.path = table.path
+        self.times = np.asarray(times, np.int64)
+        steps = np.diff(self.times)
+        if np.any(steps <= 0):
+            i = int(np.argmax(steps <= 0)) + 1
+            raise InputFileError(f"tracking_timestamp_us does not increase ({self.times[i - 1]} then "
+                                 f"{self.times[i]})", table.path, table.rows[i].line)
+        self.translations = np.asarray(translations)
+        self.quaternions = np.asarray(quaternions)
+        utc = np.asarray(utc, np.int64)
+        known = utc >= 0
+        self.utc_offset_ns = int(np.median(utc[known] - 1000 * self.times[known])) if known.any() else None
+        self.graph_uids = sorted({row.cell("graph_uid") for row in table.rows}) if table.has("graph_uid") else []
+
+    def poses_at(self, times_us: np.ndarray, max_gap_us: float):
+        """``(R_world_device (M, 3, 3), t_world_device (M, 3))`` at ``times_us`` and the mask of the
+        times the trajectory covers (inside it, between poses at most ``max_gap_us`` apart)."""
+        t = self.times
+        upper = np.clip(np.searchsorted(t, times_us, side="left"), 0, len(t) - 1)
+        lower = np.clip(upper - 1, 0, len(t) - 1)
+        exact = t[upper] == times_us
+        lower = np.where(exact, upper, lower)
+        inside = (times_us >= t[0]) & (times_us <= t[-1])
+        covered = inside & (exact | (t[upper] - t[lower] <= max_gap_us))
+        span = np.maximum(t[upper] - t[lower], 1)
+        s = np.where(exact, 0.0, (times_us - t[lower]) / span)
+        translations = self.translations[lower] + s[:, None] * (self.translations[upper] - self.translations[lower])
+        quaternions = _slerp(self.quaternions[lower], self.quaternions[upper], s)
+        return _quaternion_to_matrix(quaternions), translations, covered
+
+
+def read_aria(paths, *, camera: Optional[CameraPoses] = None, persons: Optional[Sequence[str]] = None,
+              T_device_cpf=None, fps: float = ARIA_FPS, start_ns: Optional[int] = None, clock: Optional[str] = None,
+              max_pose_gap_s: float = 0.05) -> RayRecording:
+    """Aria MPS wearer folders (``general_eye_gaze.csv`` + ``closed_loop_trajectory.csv`` each) → one
+    world :class:`RayRecording` (module docstring: CPF, bandwidth from the intervals, trajectory
+    interpolation, shared time grid).
+
+    ``T_device_cpf``: the 4×4 ``T_device_cpf`` of the device calibration (one for all wearers, or a
+    list in folder order); default identity, with a warning. ``clock``: ``"utc"`` or ``"device"``
+    (default: device for one wearer, UTC for several). ``camera``: poses of the CPF (our axes) for
+    one wearer without a trajectory. Gaze samples the trajectory does not cover are dropped with a
+    warning; a wearer left without any is an :class:`InputFileError`.
+    """
+    paths = as_paths(paths)
+    names = wearer_names(paths, persons, ())
+    if clock is None:
+        clock = "device" if len(paths) == 1 else "utc"
+    if clock not in ("device", "utc"):
+        raise ValueError(f"clock must be 'device' or 'utc', got {clock!r}")
+    transforms = list(T_device_cpf) if isinstance(T_device_cpf, (list, tuple)) else [T_device_cpf] * len(paths)
+    if len(transforms) != len(paths):
+        raise ValueError(f"T_device_cpf has {len(transforms)} transforms for {len(paths)} wearers")
+    transforms = [_as_transform(T, "T_device_cpf") for T in transforms]
+    wearers, graph_uids = [], {}
+    for path, person, T in zip(paths, names, transforms):
+        gaze_path, trajectory_path = _wearer_files(path)
+        gaze_path, times_us, origins_cpf, directions_cpf, bandwidth = _read_gaze(gaze_path)
+        if trajectory_path is None:
+            if len(paths) > 1:
+                raise InputFileError(f"no {TRAJECTORY_FILE} for this wearer: several wearers share a world only "
+                                     "through their trajectories", path)
+            origins, directions = origins_cpf @ R_OURS_FROM_CPF.T, directions_cpf @ R_OURS_FROM_CPF.T
+            wearers.append([gaze_path, person, 1000 * times_us, origins, directions, bandwidth, camera])
+            continue
+        if camera is not None:
+            raise ValueError("camera= places a wearer without a trajectory; this wearer's world is its "
+                             f"{TRAJECTORY_FILE}")
+        if T_device_cpf is None and not wearers:
+            warnings.warn("read_aria: no T_device_cpf given: taking the device frame (left SLAM camera) as the CPF; "
+                          "world gaze directions are off by that camera's mounting angle. Pass the device "
+                          "calibration's get_transform_device_cpf().to_matrix() (read_aria_device_cpf)", stacklevel=2)
+        trajectory = _Trajectory(trajectory_path)
+        graph_uids[person] = trajectory.graph_uids
+        R_wd, t_wd, covered = trajectory.poses_at(times_us, max_pose_gap_s * 1e6)
+        if not covered.all():
+            warnings.warn(f"{gaze_path}: dropped {int((~covered).sum())} of {len(covered)} gaze samples that "
+                          f"{trajectory.path} does not cover (outside it or in a gap over {max_pose_gap_s:g} s)",
+                          stacklevel=2)
+        if not covered.any():
+            raise InputFileError(f"no gaze sample falls within the trajectory {trajectory.path} "
+                                 f"(gaze {times_us[0]}–{times_us[-1]} µs, trajectory {trajectory.times[0]}–"
+                                 f"{trajectory.times[-1]} µs)", gaze_path)
+        R_wc = R_wd[covered] @ T[:3, :3]
+        t_wc = np.einsum("mij,j->mi", R_wd[covered], T[:3, 3]) + t_wd[covered]
+        origins = np.einsum("mij,mj->mi", R_wc, origins_cpf[covered]) + t_wc
+        directions = np.einsum("mij,mj->mi", R_wc, directions_cpf[covered])
+        shared_ns = 1000 * times_us[covered]
+        if clock == "utc":
+            if trajectory.utc_offset_ns is None:
+                raise InputFileError("no utc_timestamp_ns (all −1 or absent): the wearers' device clocks cannot be "
+                                     "put on one clock; pass clock='device' if the recordings share a clock "
+                                     "(e.g. Aria TimeSync)", trajectory.path)
+            shared_ns = shared_ns + trajectory.utc_offset_ns
+        wearers.append([gaze_path, person, shared_ns, origins, directions, bandwidth[covered], None])
+    distinct = {tuple(uids) for uids in graph_uids.values()}
+    if len(distinct) > 1:
+        warnings.warn("read_aria: the trajectories have different graph_uid ("
+                      + "; ".join(f"{p}: {', '.join(u) or '?'}" for p, u in graph_uids.items())
+                      + "): their worlds differ unless MPS multi-SLAM aligned them", stacklevel=2)
+    if start_ns is None:
+        start_ns = min(int(w[2].min()) for w in wearers)
+    all_frames, all_persons, all_origins, all_directions, all_bandwidth = [], [], [], [], []
+    for gaze_path, person, shared_ns, origins, directions, bandwidth, pose in wearers:
+        frames, keep = frames_on_grid(shared_ns, start_ns, fps)
+        frames = frames[keep]
+        origins, directions = camera_rays_to_world(frames, origins[keep], directions[keep], pose, path=gaze_path)
+        all_frames += frames.tolist()
+        all_persons += [person] * len(frames)
+        all_origins.append(origins)
+        all_directions.append(directions)
+        all_bandwidth.append(bandwidth[keep])
+    return stack_rays(all_frames, all_persons, np.concatenate(all_origins), np.concatenate(all_directions),
+                      np.concatenate(all_bandwidth), path=paths[0] if len(paths) == 1 else ", ".join(paths))
+
+
+# ---------------------------------------------------------------------------
+# Writing
+
+
+def _upright_poses(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``R_world_from_cpf`` (our axes) with +x along each direction and +z as close to world up as
+    it goes (no roll), centred on the origins: the pose that sees every ray straight ahead."""
+    forward = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    left = np.cross([0.0, 0.0, 1.0], forward)
+    norm = np.linalg.norm(left, axis=1, keepdims=True)
+    if np.any(norm < 1e-9):
+        raise ValueError("a gaze ray points straight up or down: give poses= to write it")
+    left /= norm
+    return np.stack([forward, left, np.cross(forward, left)], axis=-1), origins
+
+
+def write_aria(directory, recording: RayRecording, *, person: Optional[str] = None,
+               poses: Optional[CameraPoses] = None, T_device_cpf=None, fps: float = ARIA_FPS, start_ns: int = 0,
+               device_offset_ns: int = 0, graph_uid: str = "jaxgaze-world") -> int:
+    """Write one person's rays as an MPS wearer folder: ``general_eye_gaze.csv`` (legacy schema) and
+    ``closed_loop_trajectory.csv`` in ``directory`` (created if needed), atomically; returns the
+    number of gaze rows.
+
+    ``poses``: the CPF's poses in our axes (``R_camera_from_world``, ``centers`` on the ray origins,
+    one per ray frame, or sampled at ``poses.timestamps`` seconds on the shared clock); default: an
+    upright CPF looking along each ray. Gaze in CPF (:func:`direction_to_aria_gaze`); bounds
+    ``angle ± z·h`` (:data:`INTERVAL_COVERAGE`); ``T_world_device = T_world_cpf · T_device_cpf⁻¹``.
+    The shared clock is ``start_ns + frame · 1e9 / fps``; the device clock is that minus
+    ``device_offset_ns`` (``tracking_timestamp_us``, whole µs), ``utc_timestamp_ns`` the shared one.
+    """
+    frames, origins, directions, bandwidth = person_rays(recording, person, directory)
+    T = _as_transform(T_device_cpf, "T_device_cpf")
+    shared_ns = start_ns + np.rint(frames * (1e9 / fps)).astype(np.int64)
+    if poses is None:
+        R_wc, centers = _upright_poses(origins, directions)
+        pose_ns, R_at, c_at = shared_ns, R_wc, centers
+    elif poses.timestamps is None:
+        at = np.clip(np.searchsorted(np.asarray(poses.frame_ids), frames), 0, len(poses.frame_ids) - 1)
+        if np.any(np.asarray(poses.frame_ids)[at] != frames):
+            raise ValueError("poses= has no pose for some ray frames (give it timestamps to interpolate)")
+        R_wc, centers = poses.R_world_from_camera[at], np.asarray(poses.centers, np.float64)[at]
+        pose_ns, R_at, c_at = shared_ns, R_wc, centers
+    else:
+        R_wc, centers = poses.R_world_from_camera, np.asarray(poses.centers, np.float64)
+        pose_ns = np.rint(np.asarray(poses.timestamps, np.float64) * 1e9).astype(np.int64)
+        if shared_ns.min() < pose_ns.min() or shared_ns.max() > pose_ns.max():
+            raise ValueError("poses.timestamps do not cover the rays' times (start_ns + frame · 1e9 / fps)")
+        R_at, c_at = _poses_at_times(pose_ns, R_wc, centers, shared_ns)
+    local_origin = np.einsum("mji,mj->mi", R_at, origins - c_at)
+    if np.abs(local_origin).max() > 1e-3:
+        raise ValueError(f"{GAZE_FILE} (legacy schema) starts every ray at the CPF, but a ray starts "
+                         f"{1000 * np.abs(local_origin).max():.1f} mm from its pose's centre: centre poses= on the "
+                         "ray origins")
+    yaw, pitch = direction_to_aria_gaze(np.einsum("mji,mj->mi", R_at, directions))
+    half = _Z * bandwidth
+    device_us = np.rint((shared_ns - device_offset_ns) / 1000).astype(np.int64)
+    gaze_rows = [[int(t), *map(format_float, (y, p)), "0.0", *map(format_float, (y - h, p - h, y + h, p + h)),
+                  "jaxgaze"] for t, y, p, h in zip(device_us, yaw, pitch, half)]
+    R_w_cpf_aria = R_wc @ R_OURS_FROM_CPF  # CPF axes → world
+    R_wd = R_w_cpf_aria @ T[:3, :3].T
+    t_wd = centers - np.einsum("mij,j->mi", R_wd, T[:3, 3])
+    q = _matrix_to_quaternion(R_wd)
+    pose_us = np.rint((pose_ns - device_offset_ns) / 1000).astype(np.int64)
+    trajectory_rows = [[graph_uid, int(t), int(t) * 1000 + int(device_offset_ns), *map(format_float, tr),
+                        *map(format_float, qq), *["0.0"] * 6, "0.0", "0.0", "-9.81", "1.0"]
+                       for t, tr, qq in zip(pose_us, t_wd, q)]
+    os.makedirs(directory, exist_ok=True)
+    write_csv_rows(os.path.join(directory, TRAJECTORY_FILE), TRAJECTORY_COLUMNS, trajectory_rows)
+    return write_csv_rows(os.path.join(directory, GAZE_FILE), LEGACY_GAZE_COLUMNS, gaze_rows)
+
+
+def _poses_at_times(pose_ns, R_world_cpf, centers, times_ns):
+    """Poses (our axes) interpolated at ``times_ns`` from poses at ``pose_ns`` (as the reader does)."""
+    q = _matrix_to_quaternion(R_world_cpf)
+    upper = np.clip(np.searchsorted(pose_ns, times_ns), 0, len(pose_ns) - 1)
+    lower = np.clip(upper - 1, 0, len(pose_ns) - 1)
+    lower = np.where(pose_ns[upper] == times_ns, upper, lower)
+    span = np.maximum(pose_ns[upper] - pose_ns[lower], 1)
+    s = np.clip(np.where(upper == lower, 0.0, (times_ns - pose_ns[lower]) / span), 0.0, 1.0)
+    return (_quaternion_to_matrix(_slerp(q[lower], q[upper], s)),
+            centers[lower] + s[:, None] * (centers[upper] - centers[lower]))
+
+
+def read_aria_device_cpf(vrs_path) -> np.ndarray:
+    """The 4×4 ``T_device_cpf`` of a recording's device calibration, from its VRS file through
+    projectaria-tools (``pip install 'jaxgaze[aria]'``; :class:`MissingExtraError` without it):
+    ``create_vrs_data_provider(path).get_device_calibration().get_transform_device_cpf().to_matrix()``."""
+    data_provider = require_extra("projectaria_tools.core.data_provider", "aria")
+    provider = data_provider.create_vrs_data_provider(os.fspath(vrs_path))
+    if provider is None:
+        raise InputFileError("projectaria-tools cannot open this VRS file", vrs_path)
+    return np.asarray(provider.get_device_calibration().get_transform_device_cpf().to_matrix(), dtype=np.float64)

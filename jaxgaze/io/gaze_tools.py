@@ -1,0 +1,108 @@
+"""Other gaze tools' outputs → world-frame :class:`~jaxgaze.rays.GazeRays`: the pieces every adapter shares.
+
+Each adapter (``jaxgaze.io.gaze360``, ``l2cs``, ``xgaze``, ``mediapipe``, ``pupil``, ``aria``,
+``openface``) turns one tool's output into a :class:`~jaxgaze.io.rays.RayRecording`: one ray per
+(frame, person), origin at the centre of the eyes, world frame, metres, with a per-ray bandwidth
+``h`` (radians) taken from the tool's own uncertainty where it reports one.
+
+A camera-based tool (a webcam looking at people) sees the rays in its camera frame. They reach the
+world through the camera's pose: ``x_world = R_world_from_camera @ x_camera + center``. Without a
+pose the world **is** our camera frame (+x along the optical axis, +y left, +z up in the image),
+which is what one static camera needs.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Optional, Sequence
+
+import numpy as np
+
+from jaxgaze.io.rays import RayRecording, stack_rays
+from jaxgaze.io.text import InputFileError
+from jaxgaze.poses import CameraPoses, as_camera_poses
+
+__all__ = [
+    "MissingExtraError",
+    "require_extra",
+    "bandwidth_from_mean_angular_error",
+    "camera_rays_to_world",
+    "world_rays_to_camera",
+    "rays_from_camera",
+]
+
+
+class MissingExtraError(ImportError):
+    """An optional package is not installed; the message names the extra that installs it."""
+
+
+def require_extra(module: str, extra: str):
+    """Import ``module`` of an optional extra, or raise :class:`MissingExtraError` with one line:
+    ``reading X needs the optional package P: pip install 'jaxgaze[extra]'``."""
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise MissingExtraError(f"this needs the optional package {module.split('.')[0]}: "
+                                f"pip install 'jaxgaze[{extra}]'") from None
+
+
+def bandwidth_from_mean_angular_error(mean_error) -> float:
+    """The bandwidth ``h`` whose cone has the mean angular error ``mean_error`` (radians).
+
+    The offset on the plane at unit depth is ``h δ`` with ``δ ~ N(0, I₂)``, so the angle is Rayleigh
+    with scale ``h`` for small ``h`` and its mean is ``h √(π/2)``: ``h = error / √(π/2)``.
+    """
+    return float(mean_error) / math.sqrt(math.pi / 2)
+
+
+def _poses_of_frames(camera: CameraPoses, frames: np.ndarray, path) -> tuple[np.ndarray, np.ndarray]:
+    """``R_world_from_camera (M, 3, 3)`` and ``centers (M, 3)`` for each row's frame: one pose serves
+    every frame; several are matched by frame id (a frame without a pose is an error naming it)."""
+    camera = as_camera_poses(camera, "camera")
+    R = camera.R_world_from_camera
+    if camera.num_frames == 1:
+        return np.broadcast_to(R[0], (len(frames), 3, 3)), np.broadcast_to(camera.centers[0], (len(frames), 3))
+    index = np.searchsorted(camera.frame_ids, frames)
+    index = np.clip(index, 0, camera.num_frames - 1)
+    missing = camera.frame_ids[index] != frames
+    if missing.any():
+        raise InputFileError(f"no camera pose for frame {int(frames[np.argmax(missing)])} "
+                             f"({int(missing.sum())} rows without one)", "<arrays>" if path is None else path)
+    return R[index], camera.centers[index]
+
+
+def camera_rays_to_world(frames, eyes_camera, directions_camera, camera: Optional[CameraPoses] = None, *, path=None):
+    """Eye centres and gaze directions in our camera frame → world frame, row by row.
+
+    ``x_world = R_world_from_camera @ x_camera + center`` and ``v_world = R_world_from_camera @ v_camera``,
+    with the pose of each row's frame (``camera=None``: the world is the camera frame).
+    """
+    frames = np.asarray(frames, dtype=np.int64).reshape(-1)
+    eyes = np.asarray(eyes_camera, dtype=np.float64).reshape(-1, 3)
+    directions = np.asarray(directions_camera, dtype=np.float64).reshape(-1, 3)
+    if camera is None:
+        return eyes, directions
+    R, centers = _poses_of_frames(camera, frames, path)
+    return np.einsum("mij,mj->mi", R, eyes) + centers, np.einsum("mij,mj->mi", R, directions)
+
+
+def world_rays_to_camera(frames, eyes_world, directions_world, camera: Optional[CameraPoses] = None, *, path=None):
+    """The inverse of :func:`camera_rays_to_world` (the writers of the round trips use it)."""
+    frames = np.asarray(frames, dtype=np.int64).reshape(-1)
+    eyes = np.asarray(eyes_world, dtype=np.float64).reshape(-1, 3)
+    directions = np.asarray(directions_world, dtype=np.float64).reshape(-1, 3)
+    if camera is None:
+        return eyes, directions
+    R, centers = _poses_of_frames(camera, frames, path)
+    return np.einsum("mji,mj->mi", R, eyes - centers), np.einsum("mji,mj->mi", R, directions)
+
+
+def rays_from_camera(frames: Sequence[int], persons: Sequence[str], eyes_camera, directions_camera, bandwidth, *,
+                     camera: Optional[CameraPoses] = None, path=None) -> RayRecording:
+    """Rows of (frame, person, eye centre, gaze direction, bandwidth) in our camera frame → a world
+    :class:`RayRecording` (:func:`camera_rays_to_world`, then :func:`~jaxgaze.io.rays.stack_rays`)."""
+    path = "<arrays>" if path is None else path
+    origins, directions = camera_rays_to_world(frames, eyes_camera, directions_camera, camera, path=path)
+    return stack_rays(list(frames), list(persons), origins, directions, bandwidth, path=path)

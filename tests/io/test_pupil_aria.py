@@ -1,0 +1,294 @@
+"""Pupil Labs (Core, Neon) and Project Aria MPS readers: fixtures in the tools' own formats against
+the tools' published conversions, round trips, timestamp matching, filtering and errors."""
+
+import math
+import os
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxgaze.io import aria, pupil
+from jaxgaze.io.gaze_tools import MissingExtraError
+from jaxgaze.io.rays import stack_rays
+from jaxgaze.io.text import InputFileError
+from jaxgaze.poses import camera_poses
+from jaxgaze.rays import GazeRays
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+S10, C10 = math.sin(math.radians(10)), math.cos(math.radians(10))
+AHEAD, LEFT_10, UP_10 = np.array([1.0, 0, 0]), np.array([C10, S10, 0]), np.array([C10, 0, S10])
+
+
+def rows_of(recording, person):
+    """``{frame: (origin, direction, bandwidth)}`` of one person's rays."""
+    frames, origins, directions, bandwidth = pupil.person_rays(recording, person, "<test>")
+    return {int(f): (o, d, h) for f, o, d, h in zip(frames, origins, directions, bandwidth)}
+
+
+def assert_same_rays(a, b, atol=1e-6):
+    assert a.frame_ids == b.frame_ids and a.persons == b.persons
+    for field in ("origins", "directions", "bandwidth", "mask"):
+        np.testing.assert_allclose(np.asarray(getattr(a.rays, field), float), np.asarray(getattr(b.rays, field), float),
+                                   atol=atol, err_msg=field)
+
+
+def rotation_z(angle):
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+# ---------------------------------------------------------------------------
+# Pupil Core
+
+
+def test_pupil_known_gaze_filtering_and_frames():
+    with pytest.warns(UserWarning, match=r"dropped 1 rows of confidence < 0.6, 1 rows without 3D gaze"):
+        recording = pupil.read_pupil(DATA / "pupil_gaze_positions.csv", persons=["ann"])
+    assert recording.frame_ids == [0, 1, 3]  # world 2 had only a low-confidence and a 2D row
+    rays = rows_of(recording, "ann")
+    # OpenCV (x right, y down, z forward) mm → ours (x forward, y left, z up) m: (z, −x, −y) / 1000
+    binocular_origin = np.array([-0.010, 0.010, -0.015])  # midpoint of (20, 15, −10) and (−40, 15, −10) mm
+    np.testing.assert_allclose(rays[0][0], binocular_origin, atol=1e-9)
+    np.testing.assert_allclose(rays[0][1], AHEAD, atol=1e-9)  # the most confident of world 0 (0.95, not 0.80)
+    np.testing.assert_allclose(rays[1][1], LEFT_10, atol=1e-9)  # normal (−sin 10°, 0, cos 10°): to the left
+    np.testing.assert_allclose(rays[3][0], [-0.010, 0.040, -0.015], atol=1e-9)  # monocular: eye 1's centre
+    np.testing.assert_allclose(rays[3][1], UP_10, atol=1e-9)  # normal (0, −sin 10°, cos 10°): up
+    assert all(h == pytest.approx(pupil.DEFAULT_BANDWIDTH_PUPIL) for _, _, h in rays.values())
+
+
+def test_pupil_round_trip_and_camera_pose(tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        first = pupil.read_pupil(DATA / "pupil_gaze_positions.csv", persons=["ann"])
+    pupil.write_pupil(tmp_path / "gaze_positions.csv", first)
+    again = pupil.read_pupil(tmp_path / "gaze_positions.csv", persons=["ann"])
+    assert_same_rays(first, again)
+    # the same file seen through a scene camera turned 90° left and lifted 1.5 m
+    pose = camera_poses(rotation_z(math.pi / 2).T, [0.0, 0.0, 1.5], [0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        placed = pupil.read_pupil(DATA / "pupil_gaze_positions.csv", persons=["ann"], camera=pose)
+    np.testing.assert_allclose(rows_of(placed, "ann")[0][1], [0, 1, 0], atol=1e-9)  # ahead of the camera = world +y
+    np.testing.assert_allclose(rows_of(placed, "ann")[0][0], [-0.010, -0.010, 1.485], atol=1e-9)
+
+
+def test_pupil_several_wearers_need_poses(tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(ValueError, match="camera="):
+            pupil.read_pupil([DATA / "pupil_gaze_positions.csv"] * 2, persons=["a", "b"])
+        pose = camera_poses(np.eye(3), [0, 0, 0], [0])
+        both = pupil.read_pupil([DATA / "pupil_gaze_positions.csv"] * 2, persons=["a", "b"], camera={"a": pose,
+                                                                                                      "b": pose})
+    assert both.persons[0] == ["a", "b"]
+
+
+def test_pupil_bad_cell_names_file_and_line(tmp_path):
+    text = (DATA / "pupil_gaze_positions.csv").read_text().splitlines()
+    text[3] = text[3].replace("0.90", "high", 1)
+    (tmp_path / "bad.csv").write_text("\n".join(text) + "\n")
+    with pytest.raises(InputFileError, match=r"bad\.csv, line 4: column 'confidence' is not a number"):
+        pupil.read_pupil(tmp_path / "bad.csv")
+    (tmp_path / "no3d.csv").write_text("world_index,confidence\n0,1.0\n")
+    with pytest.raises(InputFileError, match=r"no3d\.csv, line 1: missing columns 'gaze_point_3d_x'"):
+        pupil.read_pupil(tmp_path / "no3d.csv")
+
+
+# ---------------------------------------------------------------------------
+# Neon
+
+
+def cart_to_spherical(points_opencv):
+    """Pupil Labs' ``cart_to_spherical`` (Neon Player / pl-neon-recording export), degrees."""
+    x, y, z = points_opencv[:, 0], points_opencv[:, 1], points_opencv[:, 2]
+    radius = np.sqrt(x**2 + y**2 + z**2)
+    elevation = np.arccos(y / radius) - np.pi / 2
+    azimuth = np.pi / 2 - np.arctan2(z, x)
+    return np.rad2deg(azimuth), np.rad2deg(elevation)
+
+
+def test_neon_known_gaze_and_published_formula():
+    with pytest.warns(UserWarning, match=r"dropped 1 samples not worn \(worn = 0\), 1 samples in a blink"):
+        recording = pupil.read_neon(DATA / "neon_gaze.csv")
+    assert recording.frame_ids == [0, 1, 2] and recording.persons[0] == ["neon_gaze"]  # the file names the wearer
+    rays = rows_of(recording, "neon_gaze")
+    np.testing.assert_allclose(rays[0][1], AHEAD, atol=1e-12)  # the sample nearest frame 0's time
+    np.testing.assert_allclose(rays[1][1], LEFT_10, atol=1e-12)  # azimuth −10°: positive azimuth is right
+    np.testing.assert_allclose(rays[2][1], UP_10, atol=1e-12)
+    assert all(np.allclose(o, 0) for o, _, _ in rays.values())  # from the scene camera
+    # against Pupil Labs' own formula, on unprojected OpenCV points (z = 1)
+    points = np.array([[0.3, -0.2, 1.0], [-0.5, 0.4, 1.0], [0.0, 0.0, 1.0]])
+    azimuth, elevation = cart_to_spherical(points)
+    ours = pupil.neon_angles_to_direction(azimuth, elevation)
+    expected = (points / np.linalg.norm(points, axis=1, keepdims=True)) @ np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0.0]]).T
+    np.testing.assert_allclose(ours, expected, atol=1e-12)
+    np.testing.assert_allclose(np.stack(pupil.direction_to_neon_angles(ours), axis=-1),
+                               np.stack([azimuth, elevation], axis=-1), atol=1e-9)
+
+
+def test_neon_round_trip(tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        first = pupil.read_neon(DATA / "neon_gaze.csv", persons=["ben"], start_ns=0)
+    pupil.write_neon(tmp_path / "gaze.csv", first)
+    again = pupil.read_neon(tmp_path / "gaze.csv", persons=["ben"], start_ns=0)
+    assert_same_rays(first, again, atol=1e-9)
+    moved = first._replace(rays=GazeRays(np.asarray(first.rays.origins) + 0.1, first.rays.directions,
+                                         first.rays.bandwidth, first.rays.mask))
+    with pytest.raises(ValueError, match="no gaze origin"):
+        pupil.write_neon(tmp_path / "moved.csv", moved)
+
+
+def test_neon_bad_angle_names_file_and_line(tmp_path):
+    text = (DATA / "neon_gaze.csv").read_text().replace(",0.0,10.0\n", ",0.0,100.0\n")
+    (tmp_path / "gaze.csv").write_text(text)
+    with pytest.raises(InputFileError, match=r"gaze\.csv, line 5: azimuth 0°, elevation 100° out of range"):
+        pupil.read_neon(tmp_path / "gaze.csv")
+
+
+# ---------------------------------------------------------------------------
+# Project Aria MPS
+
+
+def test_aria_known_gaze_timestamp_matching_and_bandwidth():
+    with pytest.warns(UserWarning, match="dropped 1 of 4 gaze samples"):
+        recording = aria.read_aria(DATA / "aria_wearer", T_device_cpf=np.eye(4))
+    assert recording.frame_ids == [0, 1, 2] and recording.persons[0] == ["aria_wearer"]
+    rays = rows_of(recording, "aria_wearer")
+    # the device faces world +y (CPF X left → world −x, Y up → +z, Z forward → +y), moving 1 m/s along +x;
+    # gaze at 1000, 101000, 201000 µs between poses 2 ms apart: the origin is interpolated halfway
+    for frame, x in ((0, 1.001), (1, 1.101), (2, 1.201)):
+        np.testing.assert_allclose(rays[frame][0], [x, 2.0, 1.6], atol=1e-9)
+    # getUnitVectorFromYawPitch: normalise(tan yaw, tan pitch, 1) in CPF (X left, Y up, Z forward)
+    np.testing.assert_allclose(rays[0][1], [0, 1, 0], atol=1e-9)
+    np.testing.assert_allclose(rays[1][1], [-S10, C10, 0], atol=1e-9)  # yaw +10°: the wearer's left, world −x
+    np.testing.assert_allclose(rays[2][1], [0, C10, S10], atol=1e-9)  # pitch +10°: up
+    # intervals [yaw − 0.04, yaw + 0.06], [pitch ± 0.03] read as central 80 %: sd = width / (2 · 1.2816)
+    expected_h = math.sqrt(((0.10 / 2.563103131089201) ** 2 + (0.06 / 2.563103131089201) ** 2) / 2)
+    assert all(h == pytest.approx(expected_h, rel=1e-6) for _, _, h in rays.values())
+
+
+def test_aria_vergence_schema_matches_projectaria_tools():
+    with pytest.warns(UserWarning, match="1 of 2 gaze rows have no usable"):
+        recording = aria.read_aria(DATA / "aria_vergence")  # no trajectory: the world is the CPF, our axes
+    _, direction, h = rows_of(recording, "aria_vergence")[0]
+    # TestEyeGaze.cpp: computeDepthAndCombinedGazeDirection(−0.1264797, −0.07706982, −0.26359045) → yaw −0.10183712
+    combined = aria.aria_gaze_to_direction(-0.10183712, -0.26359045)
+    np.testing.assert_allclose(direction, combined, atol=1e-7)
+    # TestEyeGaze.cpp: getEyeGazePointAtDepth(−0.10291049, −0.28885189, 1.17952664) = (−0.11620133, −0.33435595, 1.12516063)
+    point_cpf = aria.R_OURS_FROM_CPF.T @ (1.179526637404006 * aria.aria_gaze_to_direction(-0.10291049001666,
+                                                                                         -0.288851886987686))
+    np.testing.assert_allclose(point_cpf, [-0.116201334110103, -0.334355951558995, 1.12516063], atol=1e-6)
+    np.testing.assert_allclose(rows_of(recording, "aria_vergence")[0][0], [0, 0, 0.002], atol=1e-9)  # eyes' midpoint
+    sd_yaw = (0.08 / 2 + 0.06 / 2) / 2 / 1.2815515655446004  # mean of the two eyes' sds
+    assert h == pytest.approx(math.sqrt((sd_yaw**2 + (0.08 / 2 / 1.2815515655446004) ** 2) / 2), rel=1e-6)
+    assert rows_of(recording, "aria_vergence")[1][2] == pytest.approx(aria.DEFAULT_BANDWIDTH_ARIA)
+
+
+def test_aria_round_trip(tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        first = aria.read_aria(DATA / "aria_wearer", T_device_cpf=np.eye(4), start_ns=0)
+    aria.write_aria(tmp_path / "w", first)
+    again = aria.read_aria(tmp_path / "w", persons=["aria_wearer"], T_device_cpf=np.eye(4), start_ns=0)
+    assert_same_rays(first, again)
+
+
+def test_aria_several_wearers_share_a_clock_and_a_world(tmp_path):
+    """Two devices with clocks days apart and a tilted device-to-CPF calibration: read on the UTC
+    clock, both wearers' frames line up and the world rays come back."""
+    rng = np.random.default_rng(4)
+    T_device_cpf = np.eye(4)
+    T_device_cpf[:3, :3] = rotation_z(0.3) @ np.array([[1, 0, 0], [0, math.cos(0.2), -math.sin(0.2)],
+                                                       [0, math.sin(0.2), math.cos(0.2)]])
+    T_device_cpf[:3, 3] = [0.04, -0.01, 0.02]
+    frames = np.arange(5)
+    truth = {}
+    for k, name in enumerate(["anna", "bert"]):
+        origins = rng.normal(size=(5, 3))
+        directions = np.c_[rng.normal(size=(5, 2)), np.full(5, 0.3)]
+        recording = stack_rays(frames.tolist(), [name] * 5, origins, directions, np.full(5, 0.02), path=name)
+        # head poses at half-frame times, the CPF on the eyes and turned toward each ray
+        R, _ = aria._upright_poses(origins, directions)
+        poses = camera_poses(np.swapaxes(R, 1, 2), origins, frames, timestamps=1.0 + frames / 10.0)
+        aria.write_aria(tmp_path / name, recording, poses=poses, T_device_cpf=T_device_cpf, start_ns=10**9,
+                        device_offset_ns=(k + 1) * 86_400 * 10**9)
+        truth[name] = recording
+    both = aria.read_aria([tmp_path / "anna", tmp_path / "bert"], T_device_cpf=T_device_cpf)
+    assert both.frame_ids == frames.tolist() and both.persons[0] == ["anna", "bert"]
+    for name in truth:
+        for frame, (o, d, h) in rows_of(both, name).items():
+            o0, d0, h0 = rows_of(truth[name], name)[frame]
+            np.testing.assert_allclose(o, o0, atol=1e-6)
+            np.testing.assert_allclose(d, d0, atol=1e-6)
+            assert h == pytest.approx(h0, rel=1e-5)
+    with pytest.warns(UserWarning, match="no T_device_cpf"):  # the identity is a guess, said aloud
+        aria.read_aria([tmp_path / "anna", tmp_path / "bert"])
+
+
+def test_aria_bad_input_names_file_and_line(tmp_path):
+    folder = tmp_path / "w"
+    folder.mkdir()
+    (folder / aria.TRAJECTORY_FILE).write_text((DATA / "aria_wearer" / aria.TRAJECTORY_FILE).read_text())
+    text = (DATA / "aria_wearer" / aria.GAZE_FILE).read_text().splitlines()
+    (folder / aria.GAZE_FILE).write_text("\n".join(text[:2] + [text[2].replace(",0.0,", ",nan?,", 1)] + text[3:]))
+    with pytest.raises(InputFileError, match=r"general_eye_gaze\.csv, line 3: column 'pitch_rads_cpf' is not a number"):
+        aria.read_aria(folder, T_device_cpf=np.eye(4))
+    (folder / aria.GAZE_FILE).write_text("tracking_timestamp_us,pitch_rads_cpf\n1,0.0\n")
+    with pytest.raises(InputFileError, match=r"line 1: missing column 'yaw_rads_cpf'"):
+        aria.read_aria(folder, T_device_cpf=np.eye(4))
+    (folder / aria.GAZE_FILE).write_text("\n".join(text))
+    trajectory = (DATA / "aria_wearer" / aria.TRAJECTORY_FILE).read_text().replace(",0.0,0.7071", ",0.5,0.7071", 1)
+    (folder / aria.TRAJECTORY_FILE).write_text(trajectory)
+    with pytest.raises(InputFileError, match=r"closed_loop_trajectory\.csv, line 2: quaternion .* is not unit"):
+        aria.read_aria(folder, T_device_cpf=np.eye(4))
+    with pytest.raises(InputFileError, match="no general_eye_gaze.csv"):
+        aria.read_aria(tmp_path, T_device_cpf=np.eye(4))
+
+
+# ---------------------------------------------------------------------------
+# Optional extras
+
+
+@pytest.mark.parametrize("read, module, extra", [
+    (aria.read_aria_device_cpf, "projectaria_tools.core.data_provider", "aria"),
+    (pupil.read_neon_recording, "pupil_labs.neon_recording", "neon"),
+])
+def test_missing_extra_says_what_to_install(monkeypatch, read, module, extra):
+    monkeypatch.setitem(sys.modules, module, None)  # as if not installed
+    with pytest.raises(MissingExtraError, match=rf"pip install 'jaxgaze\[{extra}\]'") as info:
+        read(os.devnull)
+    assert "\n" not in str(info.value)
+
+
+# ---------------------------------------------------------------------------
+# Simulated wearers
+
+
+def test_simulated_aria_wearers_read_back_with_their_truth(tmp_path):
+    """Three people of a hand-made scene written as MPS folders come back as the scene's rays, and the
+    truth counts only the foci that two *wearers* look at."""
+    import jax
+
+    from jaxgaze.simulate import Scene, write_aria_wearers
+
+    T, rng = 4, np.random.default_rng(7)
+    foci = np.broadcast_to(np.array([[2.0, 0.0, 1.2], [0.0, 3.0, 1.0]]), (T, 2, 3))
+    focus = np.tile([0, 0, 1, 1], (T, 1))
+    origins = rng.normal(scale=0.5, size=(T, 4, 3)) + [0.0, 0.0, 1.6]
+    targets = np.take_along_axis(foci, focus[..., None], axis=1)
+    directions = targets - origins + rng.normal(scale=0.02, size=(T, 4, 3))
+    rays = GazeRays(origins, directions, np.full((T, 4), 0.02), np.ones((T, 4), bool))
+    scene = Scene(rays, targets, focus.astype(np.int32), foci, np.ones((T, 2), bool), focus, np.zeros(T, np.int32),
+                  "hand-made", 0.02, 0.0, 10.0)
+    wearers = write_aria_wearers(jax.random.key(0), scene, tmp_path, people=[0, 1, 2])
+    assert wearers.scene.concurrence_valid.tolist() == [[True, False]] * T  # person 3 (focus 1) wears none
+    assert wearers.scene.attending[0].tolist() == [0, 0, -1]
+    recording = aria.read_aria(wearers.folders, T_device_cpf=wearers.T_device_cpf, fps=wearers.fps)
+    assert recording.frame_ids == list(range(T)) and recording.persons[0] == wearers.persons
+    np.testing.assert_allclose(np.asarray(recording.rays.origins), origins[:, :3], atol=1e-5)
+    np.testing.assert_allclose(np.asarray(recording.rays.directions), np.asarray(wearers.scene.rays.directions),
+                               atol=1e-6)
