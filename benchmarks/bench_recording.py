@@ -351,7 +351,7 @@ def crowded(args, today, table):
 
     origins, directions, bandwidth, seeds = make_scene(200, 4000)
     rays = GazeRays(origins, directions, bandwidth)
-    _say("\n## crowded frame: 200 rays, best of 3 (wall and CPU)")
+    _say("\n## crowded frame: 200 rays, best of 5 (wall and CPU)")
     runs = {}
     for name, fn in [("find_concurrences", lambda: find_concurrences(rays)),
                      (f"today ({TODAY})", lambda: today.find_concurrences(rays)),
@@ -359,7 +359,7 @@ def crowded(args, today, table):
                                                                                            bandwidth, seeds, 50))]:
         first, result, _ = timed(fn)
         walls, cpus = [], []
-        for _ in range(3):
+        for _ in range(5):
             start, cpu = time.perf_counter(), time.process_time()
             jax.block_until_ready(fn())
             walls.append(time.perf_counter() - start)
