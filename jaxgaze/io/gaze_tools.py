@@ -21,11 +21,13 @@ import numpy as np
 from jaxgaze.io.rays import RayRecording, stack_rays
 from jaxgaze.io.text import InputFileError
 from jaxgaze.poses import CameraPoses, as_camera_poses
+from jaxgaze.rays import check_bandwidth
 
 __all__ = [
     "MissingExtraError",
     "require_extra",
     "bandwidth_from_mean_angular_error",
+    "tool_bandwidth",
     "camera_rays_to_world",
     "world_rays_to_camera",
     "rays_from_camera",
@@ -55,6 +57,16 @@ def bandwidth_from_mean_angular_error(mean_error) -> float:
     with scale ``h`` for small ``h`` and its mean is ``h √(π/2)``: ``h = error / √(π/2)``.
     """
     return float(mean_error) / math.sqrt(math.pi / 2)
+
+
+def tool_bandwidth(value, who: str) -> float:
+    """A reader's ``bandwidth=`` argument as ``h`` (radians): positive and under a radian
+    (:func:`~jaxgaze.rays.check_bandwidth`), else a ``ValueError`` naming ``who``."""
+    h = float(value)
+    if not h > 0:
+        raise ValueError(f"{who}: bandwidth must be positive (radians), got {h:g}")
+    check_bandwidth(h, f"{who}: bandwidth")
+    return h
 
 
 def _poses_of_frames(camera: CameraPoses, frames: np.ndarray, path) -> tuple[np.ndarray, np.ndarray]:

@@ -54,11 +54,10 @@ from jaxgaze.io.gaze360 import (
     recording_rows,
     validate_by_file,
 )
-from jaxgaze.io.gaze_tools import bandwidth_from_mean_angular_error, rays_from_camera
+from jaxgaze.io.gaze_tools import bandwidth_from_mean_angular_error, rays_from_camera, tool_bandwidth
 from jaxgaze.io.rays import RayRecording
 from jaxgaze.io.text import format_float, write_csv_rows
 from jaxgaze.poses import CameraPoses
-from jaxgaze.rays import check_bandwidth
 
 __all__ = [
     "L2CS_COLUMNS",
@@ -92,14 +91,6 @@ def _horizontal_vertical(pitch, yaw, order) -> tuple[np.ndarray, np.ndarray]:
     return (pitch, yaw) if _check_order(order) == ("pitch", "yaw") else (yaw, pitch)
 
 
-def _checked_bandwidth(bandwidth) -> float:
-    bandwidth = float(bandwidth)
-    if not bandwidth > 0:
-        raise ValueError(f"bandwidth must be positive (radians), got {bandwidth}")
-    check_bandwidth(bandwidth)
-    return bandwidth
-
-
 _LIMITS = {"pitch": math.pi, "yaw": math.pi}
 
 
@@ -123,7 +114,7 @@ def l2cs_to_rays(pitch, yaw, eyes_camera, *, order: Sequence[str] = ("pitch", "y
     if eyes.shape != (len(pitch), 3):
         raise ValueError(f"eyes_camera must be ({len(pitch)}, 3) (one eye centre per ray), got {eyes.shape}")
     horizontal, vertical = _horizontal_vertical(pitch, yaw, order)
-    bandwidth = _checked_bandwidth(bandwidth)
+    bandwidth = tool_bandwidth(bandwidth, "l2cs")
     frames, persons = default_rows(len(pitch), frames, persons)
     check_rows({"pitch": pitch, "yaw": yaw}, eyes, _ARRAYS, None, limits=_LIMITS)
     check_unique(frames, persons, [(_ARRAYS, None)] * len(frames))
@@ -140,7 +131,7 @@ def read_l2cs(paths, *, camera: Optional[CameraPoses] = None, order: Sequence[st
     empty or non-numeric cell, NaN, an angle beyond ±π (degrees?), eyes not in front of the
     camera, or a duplicate (frame, face).
     """
-    bandwidth = _checked_bandwidth(bandwidth)
+    bandwidth = tool_bandwidth(bandwidth, "l2cs")
     _check_order(order)
     frames, persons, numbers, eyes, places = read_dump(paths, L2CS_COLUMNS, "face", ("pitch", "yaw"),
                                                        L2CS_COLUMNS[4:])

@@ -50,11 +50,10 @@ from typing import Optional
 
 import numpy as np
 
-from jaxgaze.io.gaze_tools import rays_from_camera, world_rays_to_camera
+from jaxgaze.io.gaze_tools import rays_from_camera, world_rays_to_camera, tool_bandwidth
 from jaxgaze.io.rays import RayRecording
 from jaxgaze.io.text import InputFileError, atomic_path, first_few, read_lines
 from jaxgaze.poses import CameraPoses
-from jaxgaze.rays import check_bandwidth
 
 __all__ = [
     "DEFAULT_BANDWIDTH_MEDIAPIPE",
@@ -97,15 +96,6 @@ _LANDMARK_COUNTS = (468, 478)
 #: A transformation whose 3 × 3 part is further than this from a scaled rotation, or whose last row is
 #: further from (0, 0, 0, 1), is no face pose.
 _MATRIX_TOLERANCE = 1e-3
-
-
-def _bandwidth(value, who: str) -> float:
-    """``value`` as a bandwidth ``h`` (radians): positive and under a radian, else ``ValueError``."""
-    h = float(value)
-    if not h > 0:
-        raise ValueError(f"{who}: bandwidth must be positive (radians), got {h:g}")
-    check_bandwidth(h, f"{who}: bandwidth")
-    return h
 
 
 def _depth_scale(vertical_fov_deg: float) -> float:
@@ -182,7 +172,7 @@ def mediapipe_to_rays(results, frames=None, *, camera: Optional[CameraPoses] = N
     if not matrices:
         raise ValueError("mediapipe_to_rays: no faces (no facial transformation matrices: FaceLandmarker needs "
                          "output_facial_transformation_matrixes=True)")
-    h = _bandwidth(bandwidth, "mediapipe_to_rays")
+    h = tool_bandwidth(bandwidth, "mediapipe_to_rays")
     eyes, forward = mediapipe_head_rays(matrices, vertical_fov_deg=vertical_fov_deg)
     return rays_from_camera(rows, persons, eyes, forward, np.full(len(rows), h), camera=camera)
 
@@ -271,7 +261,7 @@ def read_mediapipe(paths, *, camera: Optional[CameraPoses] = None, bandwidth: fl
     ``timestamp_ms``, a matrix that is not 16 numbers, not a scaled rotation, or puts the face behind
     the camera, ``face_landmarks`` of the wrong shape, or no face at all.
     """
-    h = _bandwidth(bandwidth, "read_mediapipe")
+    h = tool_bandwidth(bandwidth, "read_mediapipe")
     _depth_scale(vertical_fov_deg)  # a bad field of view fails before the files are read
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     if not paths:

@@ -45,11 +45,10 @@ import cv2
 import numpy as np
 
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.gaze_tools import bandwidth_from_mean_angular_error, rays_from_camera, world_rays_to_camera
+from jaxgaze.io.gaze_tools import bandwidth_from_mean_angular_error, rays_from_camera, world_rays_to_camera, tool_bandwidth
 from jaxgaze.io.rays import RayRecording
 from jaxgaze.io.text import first_few, format_float, read_csv_table, write_csv_rows
 from jaxgaze.poses import CameraPoses
-from jaxgaze.rays import check_bandwidth
 
 __all__ = [
     "XGAZE_MEAN_GAZE_ERROR",
@@ -100,15 +99,6 @@ ETH_XGAZE_DLIB_INDICES = (36, 39, 42, 45, 31, 35)
 _ROTATION_TOLERANCE = 1e-3
 #: A face centre further than this from the camera (metres) is in millimetres (ETH-XGaze's own unit).
 _MAX_FACE_DISTANCE = 20.0
-
-
-def _bandwidth(value, who: str) -> float:
-    """``value`` as a bandwidth ``h`` (radians): positive and under a radian, else ``ValueError``."""
-    h = float(value)
-    if not h > 0:
-        raise ValueError(f"{who}: bandwidth must be positive (radians), got {h:g}")
-    check_bandwidth(h, f"{who}: bandwidth")
-    return h
 
 
 def xgaze_pitchyaw_to_vector(pitch, yaw) -> np.ndarray:
@@ -207,7 +197,7 @@ def xgaze_to_rays(pitch, yaw, face_centers_opencv, *, R_normalizing=None, R_head
         raise ValueError(f"xgaze_to_rays: frames and persons need {count} entries")
     gaze = denormalize_gaze(pitch, yaw, R_normalizing)
     return rays_from_camera(frames, persons, centers @ R_OURS_FROM_OPENCV.T, gaze @ R_OURS_FROM_OPENCV.T,
-                            np.full(count, _bandwidth(bandwidth, "xgaze_to_rays")), camera=camera, path=path)
+                            np.full(count, tool_bandwidth(bandwidth, "xgaze_to_rays")), camera=camera, path=path)
 
 
 def _read_dump(path, seen: dict) -> tuple[list, list, list, list]:
@@ -267,7 +257,7 @@ def read_xgaze(paths, *, camera: Optional[CameraPoses] = None,
     ``|pitch| ≤ π/2, |yaw| ≤ π`` (degrees?), a face centre behind the camera or over 20 m away
     (millimetres?), a normalising matrix that is no rotation, or a duplicate (frame, person).
     """
-    h = _bandwidth(bandwidth, "read_xgaze")
+    h = tool_bandwidth(bandwidth, "read_xgaze")
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     if not paths:
         raise ValueError("read_xgaze: no files given")
