@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from jaxgaze.cli._common import CommandError, add_output, positive_float, summary, warn, writing
+from jaxgaze.cli._common import CommandError, add_output, add_quiet, positive_float, summary, warn, writing
 from jaxgaze.io.convert import GAZE_TOOLS
 from jaxgaze.io.rays import CSV_COLUMNS
 
@@ -30,6 +30,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                              "qy, qz, cx, cy, cz); one pose serves every frame")
     parser.add_argument("--fps", type=positive_float, default=None, metavar="F",
                         help="frame rate of the time grid for tools with timestamps only (aria: 10, pupil/Neon: 30)")
+    add_quiet(parser)
     return parser
 
 

@@ -31,16 +31,18 @@ def _options(parser) -> dict:
 
 
 def _required_argv(parser, tmp_path) -> list:
-    """The command's positionals and required options, each a path that does not exist."""
+    """The command's positionals and required options, each a path that does not exist (or, for an
+    option with choices, its first choice)."""
     argv = [str(tmp_path / f"{a.dest}.in") for a in parser._actions if not a.option_strings]
     for a in parser._actions:
         if a.option_strings and a.required:
-            argv += [a.option_strings[0], str(tmp_path / f"{a.dest}.x")]
+            argv += [a.option_strings[0], sorted(a.choices)[0] if a.choices else str(tmp_path / f"{a.dest}.x")]
     return argv
 
 
 def test_every_command_has_out_and_quiet():
-    assert set(COMMANDS) == {"demo", "concurrences", "calibrate", "bias", "joint", "attend", "fit-gaze"}
+    assert set(COMMANDS) == {"demo", "concurrences", "convert", "calibrate", "bias", "joint", "attend",
+                             "fit-gaze"}
     for name, parser in COMMANDS.items():
         options = _options(parser)
         assert "--out" in options, name
