@@ -13,6 +13,7 @@ which is what one static camera needs.
 
 from __future__ import annotations
 
+import importlib
 import math
 from typing import Optional, Sequence
 
@@ -41,8 +42,6 @@ class MissingExtraError(ImportError):
 def require_extra(module: str, extra: str):
     """Import ``module`` of an optional extra, or raise :class:`MissingExtraError` with one line:
     ``reading X needs the optional package P: pip install 'jaxgaze[extra]'``."""
-    import importlib
-
     try:
         return importlib.import_module(module)
     except ImportError:

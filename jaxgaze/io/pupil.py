@@ -54,6 +54,7 @@ import os
 import warnings
 from typing import Mapping, Optional, Sequence, Union
 
+import cv2
 import numpy as np
 
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
@@ -418,11 +419,18 @@ def read_neon(paths, *, camera: Cameras = None, persons: Optional[Sequence[str]]
     """
     paths = as_paths(paths)
     names = wearer_names(paths, persons, ("gaze",))
-    tables = [_neon_table(path) for path in paths]
+    return _neon_rays([_neon_table(path) for path in paths], names, camera, start_ns, fps, bandwidth)
+
+
+def _neon_rays(samples, names, camera, start_ns, fps, bandwidth) -> RayRecording:
+    """Each wearer's ``(path, times_ns, scene-camera directions)`` → one world :class:`RayRecording`: the
+    nearest sample per frame of the time grid (:func:`frames_on_grid`), origin the scene camera, placed by
+    ``camera`` (:func:`read_neon`, :func:`read_neon_recording`)."""
+    paths = [path for path, _, _ in samples]
     if start_ns is None:
-        start_ns = min(int(times.min()) for _, times, _ in tables)
+        start_ns = min(int(times.min()) for _, times, _ in samples)
     all_frames, all_persons, all_origins, all_directions = [], [], [], []
-    for index, ((path, times, directions), person) in enumerate(zip(tables, names)):
+    for index, ((path, times, directions), person) in enumerate(zip(samples, names)):
         pose = camera_of(camera, index, person, len(paths))
         frames, keep = frames_on_grid(times, start_ns, fps)
         frames, directions = frames[keep], directions[keep]
@@ -469,8 +477,6 @@ def read_neon_recording(paths, *, camera: Cameras = None, persons: Optional[Sequ
     Every sample is kept (the native gaze stream has no ``worn``/``blink id`` columns).
     """
     neon = require_extra("pupil_labs.neon_recording", "neon")
-    import cv2  # loaded with the extra's path only: the CSV readers never need OpenCV
-
     paths = as_paths(paths)
     names = wearer_names(paths, persons, ())
     samples = []
@@ -486,17 +492,4 @@ def read_neon_recording(paths, *, camera: Cameras = None, persons: Optional[Sequ
                                           np.asarray(calibration.scene_distortion_coefficients)).reshape(-1, 2)
         rays_opencv = np.concatenate([undistorted, np.ones((len(undistorted), 1))], axis=1)
         samples.append((os.fspath(path), times, _ours_from_opencv(rays_opencv)))
-    if start_ns is None:
-        start_ns = min(int(times.min()) for _, times, _ in samples)
-    all_frames, all_persons, all_origins, all_directions = [], [], [], []
-    for index, ((path, times, directions), person) in enumerate(zip(samples, names)):
-        pose = camera_of(camera, index, person, len(paths))
-        frames, keep = frames_on_grid(times, start_ns, fps)
-        origins, directions = camera_rays_to_world(frames[keep], np.zeros((len(keep), 3)), directions[keep], pose,
-                                                   path=path)
-        all_frames += frames[keep].tolist()
-        all_persons += [person] * len(keep)
-        all_origins.append(origins)
-        all_directions.append(directions)
-    return stack_rays(all_frames, all_persons, np.concatenate(all_origins), np.concatenate(all_directions),
-                      np.full(len(all_frames), float(bandwidth)), path=", ".join(paths))
+    return _neon_rays(samples, names, camera, start_ns, fps, bandwidth)
