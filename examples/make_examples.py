@@ -142,9 +142,53 @@ def joint(directory: pathlib.Path) -> dict:
     return {name: {"bias_deg": bias_deg[p].tolist()} for p, name in enumerate(names)}
 
 
+def _world_from_camera(forward_xy) -> np.ndarray:
+    """``R_world_from_camera`` of an upright camera (ours: +x forward, +y left, +z up) facing ``forward_xy``."""
+    forward = np.array([*forward_xy, 0.0]) / np.hypot(*forward_xy)
+    return np.stack([forward, np.cross([0.0, 0.0, 1.0], forward), [0.0, 0.0, 1.0]], axis=1)
+
+
+def convert(directory: pathlib.Path) -> dict:
+    """Other tools' outputs for ``jaxgaze convert``: every third frame of the meeting of ``concurrences/rays.csv``
+    (10 frames) seen by a fixed camera 6 m in front of the group (``camera.csv``) as Gaze360 and OpenFace 2
+    multi-face CSVs, and one person's (``p03``, ann) Pupil Core export, her scene camera on her head facing
+    where she looks, with its poses (``ann_scene_camera.csv``)."""
+    from jaxgaze.io.gaze360 import write_gaze360
+    from jaxgaze.io.openface import write_openface_rays
+    from jaxgaze.io.pupil import write_pupil
+
+    scene = simulate_scene(jax.random.key(0), "meeting", num_frames=30)
+    frames = np.arange(0, scene.num_frames, 3)
+    people = [f"p{n:02d}" for n in range(scene.num_people)]
+    rays = jax.tree_util.tree_map(lambda a: np.asarray(a)[frames], scene.rays)
+    recording = RayRecording(frames.tolist(), [people] * len(frames), rays)
+    camera = CameraPoses(_world_from_camera((0.0, 1.0)).T[None], np.array([[0.0, -6.0, 1.6]]), np.array([0]))
+    write_pose_csv(directory / "camera.csv", camera)  # one pose: a fixed camera, for every frame
+    write_gaze360(directory / "gaze360.csv", recording, camera=camera)
+    write_openface_rays(directory / "openface.csv", recording._replace(frame_ids=(frames + 1).tolist()),
+                        camera=camera, fps=scene.fps)  # OpenFace counts frames from 1
+
+    ann = 3  # the wearer: her scene camera sits on her eyes, upright, facing her gaze's heading
+    eyes, gaze = np.asarray(rays.origins, float)[:, ann], np.asarray(rays.directions, float)[:, ann]
+    head = CameraPoses(np.stack([_world_from_camera(g[:2]).T for g in gaze]), eyes, frames)
+    wearer = RayRecording(frames.tolist(), [["ann"]] * len(frames),
+                          jax.tree_util.tree_map(lambda a: np.asarray(a)[:, ann:ann + 1], rays))
+    (directory / "ann" / "exports" / "000").mkdir(parents=True, exist_ok=True)
+    write_pupil(directory / "ann" / "exports" / "000" / "gaze_positions.csv", wearer, camera=head)
+    write_pose_csv(directory / "ann_scene_camera.csv", head)
+
+    truth, valid = np.asarray(scene.concurrences, float), np.asarray(scene.concurrence_valid, bool)
+    targets = np.asarray(scene.targets, float)[frames, ann]
+    found = {t: np.round(truth[t][valid[t]], 4).tolist() for t in frames.tolist()}
+    return {"gaze360.csv": {"concurrences_m": {str(t): points for t, points in found.items()}},
+            "openface.csv": {"concurrences_m": {str(t + 1): points for t, points in found.items()}},
+            "ann/exports/000/gaze_positions.csv": {"person": "ann", "looks_at_m": {
+                str(t): np.round(target, 4).tolist() for t, target in zip(frames.tolist(), targets)}}}
+
+
 def main() -> None:
     truth = {}
-    for make in (concurrences, calibrate, bias, joint):
+    for make in (concurrences, calibrate, bias, joint, convert):
         directory = HERE / make.__name__
         directory.mkdir(exist_ok=True)
         truth[make.__name__] = make(directory)

@@ -23,7 +23,9 @@ Frames and units are documented in ``docs/conventions.md``: world/head/camera
 frames, metres, radians inside (degrees only in names ending ``_deg``).
 ``import jaxgaze`` loads neither OpenCV nor the simulators: :mod:`jaxgaze.vision`,
 :mod:`jaxgaze.facial`, :mod:`jaxgaze.simulate`, :mod:`jaxgaze.io`,
-:mod:`jaxgaze.papers` and :mod:`jaxgaze.plotting` load on first use.
+:mod:`jaxgaze.papers` and :mod:`jaxgaze.plotting` load on first use. ``import jaxgaze``
+turns on JAX's persistent compilation cache (:func:`jaxgaze.runtime.enable_default_compilation_cache`;
+``JAXGAZE_CACHE_DIR=off`` switches it off).
 """
 
 import importlib
@@ -74,6 +76,10 @@ from jaxgaze.bias import (
 )
 from jaxgaze.headpose import GazeRegression, fit_gaze_regression, fit_gaze_regression_nn
 from jaxgaze.joint import JointPosterior, fit_joint, joint_data
+
+# JAX's persistent compilation cache, so that a second process compiles nothing (docs/runtime.md):
+# in ~/.cache/jaxgaze/xla or $JAXGAZE_CACHE_DIR; JAXGAZE_CACHE_DIR=off, or a JAX cache of your own, leaves it off.
+runtime.enable_default_compilation_cache()
 
 __version__ = "0.1.0"
 

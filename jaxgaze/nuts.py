@@ -31,7 +31,8 @@ from numpyro.infer.util import constrain_fn, potential_energy
 from jaxgaze.results import RESULTS
 
 __all__ = ["sample_nuts", "laplace_inverse_mass", "mixing_diagnostics", "mixing_result", "posterior_summary",
-           "quiet_single_chain", "MAX_RHAT", "MIN_ESS", "MAX_DIVERGENT_SHARE", "MIN_ACCEPTANCE", "HDI_PROB"]
+           "split_chains", "set_units", "quiet_single_chain", "MAX_RHAT", "MIN_ESS", "MAX_DIVERGENT_SHARE",
+           "MIN_ACCEPTANCE", "HDI_PROB"]
 
 #: Diagnostics every NUTS posterior must pass (:func:`mixing_result`): split r-hat at most this …
 MAX_RHAT = 1.05
@@ -184,30 +185,78 @@ def laplace_inverse_mass(potential_fn, params: dict, min_curvature: float):
     return jnp.where(jnp.all(jnp.isfinite(hessian)), inverse, jnp.eye(flat.shape[0], dtype=flat.dtype))
 
 
-def _split_chains(posterior):
-    """Each chain split in halves, as chains of their own: split r-hat from a single chain (arviz needs two)."""
+#: Attribute of a posterior group laid out by :func:`split_chains`: the number of the sampler's chains.
+SAMPLER_CHAINS = "sampler_chains"
+_LAYOUT = ("each sampler chain split into halves: chains 2k and 2k+1 are the first and second half of sampler "
+           "chain k (an odd last draw dropped), so that arviz's r-hat and ESS are the split r-hat and ESS reported")
+
+
+def _split_dataset(dataset, num_chains):
+    import xarray as xr
+
+    n = dataset.sizes["draw"] // 2
+    variables = {v: (dataset[v].dims, dataset[v].values[:, : 2 * n].reshape((-1, n) + dataset[v].shape[2:]),
+                     dataset[v].attrs) for v in dataset.data_vars}
+    coords = {d: dataset.coords[d] for d in dataset.coords if d not in ("chain", "draw")}
+    coords.update(chain=np.arange(2 * dataset.sizes["chain"]), draw=np.arange(n))
+    attrs = {**dataset.attrs, SAMPLER_CHAINS: int(num_chains), "chain_layout": _LAYOUT}
+    return xr.Dataset(variables, coords=coords, attrs=attrs)
+
+
+def _is_split(dataset) -> bool:
+    return SAMPLER_CHAINS in dataset.attrs
+
+
+def split_chains(idata):
+    """``idata`` with each chain of its posterior and sample stats split into halves, as chains of their own.
+
+    Chains ``2k`` and ``2k+1`` are the first and second half of sampler chain ``k`` (an odd
+    last draw is dropped); the posterior's attribute ``sampler_chains`` holds the number of
+    sampler chains. Split r-hat needs this of a single chain, which arviz cannot judge (r-hat
+    NaN, a shape warning): in this layout arviz's own tools (``az.summary``, ``az.rhat``,
+    ``az.ess``) give the r-hat :func:`mixing_diagnostics` reports, by construction, and its ESS
+    when the ``idata`` it judged was laid out so (the ESS of whole chains differs by a few per cent).
+    Other groups are kept; an ``idata`` already split, or without a posterior, is returned as it is.
+    """
     import arviz as az
 
-    n = posterior.sizes["draw"] // 2
-    halves = {v: posterior[v].values[:, : 2 * n].reshape((-1, n) + posterior[v].shape[2:])
-              for v in posterior.data_vars}
-    dims = {v: list(posterior[v].dims[2:]) for v in posterior.data_vars}
-    coords = {d: posterior.coords[d].values for names in dims.values() for d in names if d in posterior.coords}
-    return az.convert_to_dataset(halves, dims=dims, coords=coords)
+    posterior = getattr(idata, "posterior", None)
+    if posterior is None or _is_split(posterior):
+        return idata
+    chains = posterior.sizes["chain"]
+    groups = {name: getattr(idata, name) for name in idata.groups()}
+    for name in ("posterior", "sample_stats"):
+        if name in groups:
+            groups[name] = _split_dataset(groups[name], chains)
+    return az.InferenceData(**groups)
+
+
+def set_units(idata, units: dict):
+    """Write ``units[name]`` (e.g. ``"m"``, ``"rad"``, ``"1"``) into the attributes of every variable ``name``
+    of every group of ``idata`` (in place; the netCDF keeps them); returns ``idata``."""
+    for group in idata.groups():
+        dataset = getattr(idata, group)
+        for name in dataset.data_vars:
+            if name in units:
+                dataset[name].attrs["units"] = units[name]
+    return idata
 
 
 def _diagnostic_table(posterior):
-    """Per element of ``posterior``: bulk and tail ESS of the chains, and the split r-hat (:func:`_split_chains`).
+    """Per element of ``posterior``: bulk and tail ESS of its chains as laid out, and the rank-normalised r-hat
+    of the chains split in halves (:func:`split_chains`; a posterior already split is used as it is); arviz's,
+    unrounded. On a posterior laid out by :func:`split_chains` all three are arviz's on that layout.
 
     An element that never moved within a chain has no ESS (0; arviz would give a
     constant chain the full ESS) and a NaN r-hat.
     """
     import arviz as az
 
+    split = posterior if _is_split(posterior) else _split_dataset(posterior, posterior.sizes["chain"])
     with quiet_single_chain(1), np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # arviz divides by a zero variance on a stuck chain
-        table = az.summary(posterior, kind="diagnostics")[["ess_bulk", "ess_tail"]]
-        table["r_hat"] = az.summary(_split_chains(posterior), kind="diagnostics")["r_hat"].reindex(table.index)
+        table = az.summary(posterior, kind="diagnostics", round_to="none")[["ess_bulk", "ess_tail"]]
+        table["r_hat"] = az.summary(split, kind="diagnostics", round_to="none")["r_hat"].reindex(table.index)
     moved = [np.ptp(posterior[v].values, axis=1).reshape(posterior[v].shape[0], -1) for v in posterior.data_vars]
     never_moved = np.concatenate([np.any(m == 0, axis=0) for m in moved])  # in summary row order
     table.loc[never_moved, ["ess_bulk", "ess_tail"]] = 0.0
@@ -227,8 +276,10 @@ def mixing_diagnostics(idata, var_names) -> dict:
 
     ``idata`` is an ``arviz.InferenceData`` with ``posterior`` ``(chain, draw, …)`` and
     ``sample_stats`` holding ``diverging`` and ``acceptance_rate``; ``var_names``
-    are the posterior's variables to check. r-hat is arviz's rank-normalised split
-    r-hat of the chains split in halves, so it exists for a single chain too. A
+    are the posterior's variables to check. r-hat is arviz's rank-normalised r-hat of the
+    chains split in halves (:func:`split_chains`), so it exists for a single chain too, and
+    arviz gives the same on a file written in that layout; the ESS is arviz's of the chains
+    as laid out (the halves, for an ``idata`` laid out by :func:`split_chains`). A
     variable that never moved within a chain has no ESS (0) and a NaN r-hat, which
     fail the checks. Returns ``max_rhat``, ``min_ess_bulk``, ``min_ess_tail``,
     ``divergences``, ``draws`` (all chains), ``chains`` and ``acceptance_rate`` (the
@@ -241,7 +292,8 @@ def mixing_diagnostics(idata, var_names) -> dict:
     diverging = np.asarray(stats["diverging"].values, bool)
     return {"max_rhat": math.nan if np.isnan(rhat).any() else float(rhat.max()),
             "min_ess_bulk": float(table["ess_bulk"].min()), "min_ess_tail": float(table["ess_tail"].min()),
-            "divergences": int(diverging.sum()), "draws": int(diverging.size), "chains": int(posterior.sizes["chain"]),
+            "divergences": int(diverging.sum()), "draws": int(diverging.size),
+            "chains": int(posterior.attrs.get(SAMPLER_CHAINS, posterior.sizes["chain"])),
             "acceptance_rate": float(np.mean(stats["acceptance_rate"].values))}
 
 

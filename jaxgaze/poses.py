@@ -28,6 +28,7 @@ import numpy as np
 
 from jaxgaze._checks import bucket_size
 from jaxgaze.geometry import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
+from jaxgaze.rays import UnitWarning
 
 __all__ = [
     "CameraPoses",
@@ -244,13 +245,14 @@ def points_of_regard(poses_a: CameraPoses, poses_b: CameraPoses) -> np.ndarray:
     metres, with +x A's optical axis. The two sequences must already be
     matched (same length, row ``i`` the same moment): use :func:`match_frames`.
 
-    Units are checked at the door. Raises ``ValueError`` if the lengths differ; if
+    Units are checked at the door. Raises ``ValueError`` if the lengths differ; or if
     the two cameras are less than 1 cm apart in half the frames or more (the same
-    pose track twice: every point of regard would be zero); or if the median
-    distance ``‖y_i‖`` is outside :data:`REGARD_DISTANCE_RANGE`, naming the likely
-    unit (millimetres, centimetres). Warns when a track with timestamps moves faster
-    than :data:`MAX_CAMERA_SPEED` (median over frames), or when a few frames have
-    the cameras at the same place.
+    pose track twice: every point of regard would be zero). A
+    :class:`~jaxgaze.rays.UnitWarning` (implausible, not impossible: the library's unit
+    rule) when the median distance ``‖y_i‖`` is outside :data:`REGARD_DISTANCE_RANGE`,
+    naming the likely unit (millimetres, centimetres), or when a track with timestamps
+    moves faster than :data:`MAX_CAMERA_SPEED` (median over frames). A plain warning
+    when a few frames have the cameras at the same place.
     """
     poses_a = as_camera_poses(poses_a, "poses_a")
     poses_b = as_camera_poses(poses_b, "poses_b")
@@ -290,19 +292,20 @@ def _check_session_units(poses_a: CameraPoses, poses_b: CameraPoses, distances: 
     where = f"points of regard up to {float(distances.max()):.3g} m away, median {median:.3g} m"
     if median > high:
         unit = "millimetres" if median > 300.0 else "centimetres"
-        raise ValueError(f"positions look like {unit} ({where}; two people looking at each other's camera are "
-                         f"{low:g}–{high:g} m apart): poses must be in metres")
+        warnings.warn(f"positions look like {unit} ({where}; two people looking at each other's camera are "
+                      f"{low:g}–{high:g} m apart): poses must be in metres", UnitWarning, stacklevel=3)
     if median < low:
-        raise ValueError(f"positions look too small for metres ({where}; two people looking at each other's camera "
-                         f"are {low:g}–{high:g} m apart): poses must be in metres (an SfM reconstruction "
-                         "without metric scale?)")
+        warnings.warn(f"positions look too small for metres ({where}; two people looking at each other's camera "
+                      f"are {low:g}–{high:g} m apart): poses must be in metres (an SfM reconstruction "
+                      "without metric scale?)", UnitWarning, stacklevel=3)
     for name, poses in (("A", poses_a), ("B", poses_b)):
         speed = _median_speed(poses)
         if speed > MAX_CAMERA_SPEED:
             unit = "millimetres" if speed > 300 else "centimetres" if speed > 30 else "decimetres"
             warnings.warn(f"camera {name} moves at a median {speed:.3g} m/s between frames (a head-mounted camera "
                           f"moves at most {MAX_CAMERA_SPEED:g} m/s): positions look like {unit}, or timestamps "
-                          "are not in seconds; poses must be in metres and timestamps in seconds", stacklevel=3)
+                          "are not in seconds; poses must be in metres and timestamps in seconds", UnitWarning,
+                          stacklevel=3)
 
 
 def _median_speed(poses: CameraPoses) -> float:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import equinox as eqx
 import jax
@@ -14,13 +14,16 @@ from jaxtyping import Array, Bool, Float
 
 from jaxgaze.geometry import unit
 
-__all__ = ["GazeRays", "UnitWarning", "check_units", "check_bandwidth", "MAX_BANDWIDTH", "PLAUSIBLE_BANDWIDTH",
-           "PLAUSIBLE_SCENE_EXTENT"]
+__all__ = ["GazeRays", "UnitWarning", "check_units", "check_bandwidth", "check_distance", "MAX_BANDWIDTH", "MIN_BANDWIDTH",
+           "PLAUSIBLE_BANDWIDTH", "PLAUSIBLE_SCENE_EXTENT"]
 
 _MIN_DIRECTION_NORM = 1e-9
 
 #: No gaze cone is this wide (radians, 57°): a bandwidth this large is an error (degrees given as radians?).
 MAX_BANDWIDTH = 1.0
+#: No gaze cone is this narrow (radians, 0.2″; the best eye trackers reach about 0.005): below it float32, whose
+#: unit directions carry a rounding of 2⁻²⁴ ≈ 6e-8, cannot resolve the cone, and ``1/h³`` overflows near 1e-13.
+MIN_BANDWIDTH = 1e-6
 #: A gaze cone wider than this (radians, 29°; head pose alone gives about 0.2–0.3) is implausible: a warning.
 PLAUSIBLE_BANDWIDTH = 0.5
 #: The eyes of one frame spread over more than this (metres) are implausible for one scene: a warning (millimetres?).
@@ -28,14 +31,30 @@ PLAUSIBLE_SCENE_EXTENT = 100.0
 
 
 class UnitWarning(UserWarning):
-    """A value outside its plausible range, most likely given in the wrong unit (degrees? millimetres?)."""
+    """A value outside its plausible range, most likely given in the wrong unit (degrees? millimetres?).
+
+    The unit rule of the library: a value that **cannot** be right in its documented unit (a
+    bandwidth of a radian or more, an angle beyond π) is a ``ValueError``; a value that is only
+    **implausible** (one scene over :data:`PLAUSIBLE_SCENE_EXTENT` across, a cone wider than
+    :data:`PLAUSIBLE_BANDWIDTH`) is this warning, so that an unusual but real setup still runs.
+    The command line turns every ``UnitWarning`` into an error (exit 2) unless ``--trust-units``;
+    a library user may do the same with ``warnings.simplefilter("error", UnitWarning)``.
+    """
 
 
 def check_bandwidth(bandwidth, what: str = "bandwidth") -> None:
     """Raise ``ValueError`` if a bandwidth ``h`` (radians) reaches :data:`MAX_BANDWIDTH`: a cone whose
     angular standard deviation is a radian or more says nothing about where a person looks,
-    and the likely mistake is degrees (``3`` meant as 3° is 0.0524 rad)."""
+    and the likely mistake is degrees (``3`` meant as 3° is 0.0524 rad). Also if a positive ``h``
+    is below :data:`MIN_BANDWIDTH`, narrower than float32 resolves (the field's ``1/h³`` and
+    ``1/2h²`` overflow, and one such ray turns its whole frame's field into NaN)."""
     h = np.asarray(bandwidth, dtype=float)
+    tiny = (h > 0) & (h < float(np.float32(MIN_BANDWIDTH)))  # float32(1e-6) is just below 1e-6
+    if tiny.any():
+        first = tuple(np.argwhere(tiny)[0])
+        where = f" of ray {_first_bad(tiny)}" if h.ndim else ""
+        raise ValueError(f"{what}{where} is {float(h[first]):g} rad: narrower than float32 can resolve in the field "
+                         f"(a gaze bandwidth must be at least {MIN_BANDWIDTH:g} rad)")
     if h.size and np.nanmax(h) >= MAX_BANDWIDTH:
         top = float(np.nanmax(h))
         raise ValueError(
@@ -44,22 +63,38 @@ def check_bandwidth(bandwidth, what: str = "bandwidth") -> None:
         )
 
 
+def check_distance(distances, what: str, labels=None) -> None:
+    """A :class:`UnitWarning` when the largest finite distance (metres) exceeds :data:`PLAUSIBLE_SCENE_EXTENT`
+    (100 m): positions in millimetres? ``what`` names the distance, ``labels`` (one per distance, e.g. frame
+    ids) the place of the largest."""
+    d = np.asarray(distances, dtype=float).reshape(-1)
+    d = np.where(np.isfinite(d), d, -np.inf)
+    if d.size and d.max() > PLAUSIBLE_SCENE_EXTENT:
+        i = int(np.argmax(d))
+        where = "" if labels is None else f" (frame {np.asarray(labels).reshape(-1)[i]})"
+        warnings.warn(f"{what} reaches {d[i]:.4g} m{where}, implausibly far for one scene (more than "
+                      f"{PLAUSIBLE_SCENE_EXTENT:g} m): positions are in metres (millimetres?)", UnitWarning,
+                      stacklevel=3)
+
+
 def check_units(rays: "GazeRays") -> None:
     """Catch unit mistakes at the door of the concurrence search (concrete rays only).
 
-    * A bandwidth of :data:`MAX_BANDWIDTH` (1 rad) or more is an error (:func:`check_bandwidth`).
+    * A bandwidth of :data:`MAX_BANDWIDTH` (1 rad) or more, or below :data:`MIN_BANDWIDTH`, is an error
+      naming the ray (:func:`check_bandwidth`).
     * A bandwidth over :data:`PLAUSIBLE_BANDWIDTH` (0.5 rad) is a :class:`UnitWarning` (degrees?).
     * Eyes of one frame spread over more than :data:`PLAUSIBLE_SCENE_EXTENT` (100 m, the largest
       coordinate range of the frame's real rays) is a :class:`UnitWarning` (millimetres?): in
       millimetres a room is thousands of "metres" across and no concurrence is found.
+    These are warnings, not errors (the rule: :class:`UnitWarning`); ``jaxgaze`` commands stop on them.
     """
     if not _is_concrete(rays.origins, rays.bandwidth, rays.mask):
         return
     mask = np.asarray(rays.mask, dtype=bool)
     if not mask.any():
         return
+    check_bandwidth(np.where(mask, np.asarray(rays.bandwidth, dtype=float), np.nan))
     h = np.asarray(rays.bandwidth, dtype=float)[mask]
-    check_bandwidth(h)
     if h.max() > PLAUSIBLE_BANDWIDTH:
         warnings.warn(f"bandwidth reaches {h.max():g} rad ({math.degrees(h.max()):.0f}°), implausibly wide for a "
                       f"gaze cone: it is in radians (degrees? {h.max():g}° is {math.radians(h.max()):.3g} rad)",
@@ -117,6 +152,8 @@ class GazeRays(eqx.Module):
         # stay on the device, where they are.
         on_host = not any(isinstance(a, jax.Array) for a in (origins, directions, bandwidth, mask))
         xp = np if on_host else jnp
+        if on_host:
+            _check_float32_rounding(origins)
         origins = _as_canonical(origins, xp)
         directions = _as_canonical(directions, xp)
         if not jnp.issubdtype(origins.dtype, jnp.floating):
@@ -174,10 +211,32 @@ class GazeRays(eqx.Module):
         """Leading batch axes, e.g. ``(T,)`` for a recording of T frames."""
         return self.origins.shape[:-2]
 
+    def __len__(self) -> int:
+        """Number of frames ``T``: the length of the leading batch axis."""
+        if not self.batch_shape:
+            raise TypeError("GazeRays: a single frame (no batch axis) has no length")
+        return self.batch_shape[0]
+
+    def __bool__(self) -> bool:
+        """Always true, a single frame or an empty recording too (``len`` counts frames, not truth)."""
+        return True
+
+    def __iter__(self) -> Iterator["GazeRays"]:
+        """The frames ``rays[0], …, rays[T − 1]`` (``for rays_t in recording.rays``)."""
+        if not self.batch_shape:
+            raise TypeError("GazeRays: a single frame (no batch axis) has no frames to iterate")
+        return (self[t] for t in range(len(self)))
+
     def __getitem__(self, index) -> "GazeRays":
-        """Index the batch axes, e.g. ``rays[t]`` is frame ``t``."""
+        """Index the batch axes, e.g. ``rays[t]`` is frame ``t``.
+
+        A concrete integer index of the leading axis (Python, NumPy or a concrete JAX integer)
+        past its end raises ``IndexError`` (``-T ≤ t < T``, negative from the end), where JAX
+        alone would clamp it to the last frame; a traced index (inside ``jit``) is not checked.
+        """
         if not self.batch_shape:
             raise IndexError("GazeRays: a single frame has no batch axis to index")
+        _check_frame_index(index[0] if isinstance(index, tuple) and index else index, self.batch_shape[0])
         return jax.tree_util.tree_map(lambda a: a[index], self)
 
     @classmethod
@@ -240,12 +299,46 @@ class GazeRays(eqx.Module):
         return frame_ids, rays
 
 
+def _check_frame_index(index, length: int) -> None:
+    """``IndexError`` for a concrete integer ``index`` outside ``[-length, length)``."""
+    if isinstance(index, (bool, np.bool_)) or isinstance(index, jax.core.Tracer):
+        return
+    if isinstance(index, (jax.Array, np.ndarray)):
+        if index.ndim != 0 or not jnp.issubdtype(index.dtype, jnp.integer):
+            return
+        index = int(index)
+    if isinstance(index, (int, np.integer)) and not -length <= index < length:
+        raise IndexError(f"GazeRays: frame index {int(index)} is out of range for {length} frame(s)")
+
+
 def _as_canonical(values, xp):
     """``values`` as an array of ``xp`` (numpy or jax.numpy) with the dtype ``jnp.asarray`` would give it."""
     if xp is jnp:
         return jnp.asarray(values)
     values = np.asarray(values)
     return values.astype(jax.dtypes.canonicalize_dtype(values.dtype), copy=False)
+
+
+#: Most float32 may round a float64 origin (metres) when GazeRays are made: 1 mm, reached 16 km from the world origin.
+_MAX_ORIGIN_ROUNDING = 1e-3
+
+
+def _check_float32_rounding(origins) -> None:
+    """Refuse float64 host origins that float32 (JAX's default) would round by more than 1 mm: far from the
+    world origin (UTM or ECEF coordinates: 5,000 km, where float32's grid is 0.5 m) every eye would move."""
+    values = np.asarray(origins)
+    if values.dtype != np.float64 or jax.dtypes.canonicalize_dtype(np.float64) == np.float64 or values.ndim < 2:
+        return
+    with np.errstate(over="ignore", invalid="ignore"):
+        error = np.abs(values.astype(np.float32).astype(np.float64) - values)
+    error = np.where(np.isfinite(error), error, 0.0).max(axis=-1)  # NaN and inf are _validate's
+    if error.size and error.max() > _MAX_ORIGIN_ROUNDING:
+        ray = np.unravel_index(np.argmax(error), error.shape)
+        where = str(ray[0]) if len(ray) == 1 else str(tuple(int(i) for i in ray))
+        raise ValueError(
+            f"GazeRays: origins of ray {where} lie {np.linalg.norm(values[ray]) / 1e3:.4g} km from the world origin, "
+            f"where float32 rounds them by {error.max():.2g} m: subtract a reference point (e.g. the mean eye) in "
+            "float64 first, as the jaxgaze.io readers do, or enable float64 (jax_enable_x64)")
 
 
 def _unit_host(v: np.ndarray) -> np.ndarray:

@@ -7,7 +7,9 @@ from types import SimpleNamespace
 import matplotlib
 import numpy as np
 import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import PathCollection
+from matplotlib.colors import to_rgba
 from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
 
@@ -203,16 +205,17 @@ def test_top_view_estimate_drawn_above_a_hollow_truth(frame):
     assert ax.child_axes == []  # inset=False
 
 
-def test_top_view_zoom_inset_shows_the_ellipse_of_the_mode_with_most_rays(frame):
-    """The 90 % ellipses are centimetres across on a plot metres wide: the inset zooms on the mode
-    with the most rays so that its ellipse fills a good part of the inset, with a scale bar."""
+def test_top_view_zoom_insets_show_the_ellipse_of_every_mode(frame):
+    """The 90 % ellipses are centimetres across on a plot metres wide: an inset zooms on each mode
+    so that its ellipse fills a good part of the inset, with a scale bar."""
     rays, conc = frame
     conc = conc._replace(num_rays=np.array([3, 4], np.int32))  # mode 1 has the most rays
     truth = POINTS + [[0.0, 0.0, 0.0], [0.03, -0.02, 0.0]]
     fig = plot_top_view(rays, conc, truth=truth, grid_shape=(24, 20, 10))
     ax = fig.axes[0]
-    (zoom,) = ax.child_axes
-    assert zoom.get_gid() == "zoom"
+    assert [z.get_gid() for z in ax.child_axes] == ["zoom", "zoom"]  # one per concurrence
+    zoom = ax.child_axes[1]
+    assert zoom.get_title() == "concurrence 1"
     (ellipse,) = [e for e in by_gid(zoom, "mode ellipse") if np.allclose(e.center, POINTS[1, :2], atol=1e-6)]
     (x0, x1), (y0, y1) = zoom.get_xlim(), zoom.get_ylim()
     half = max(ellipse.width, ellipse.height) / 2
@@ -252,6 +255,93 @@ def test_scene_story_one_colour_scale_and_one_colorbar(frame):
     assert images[0].get_clim() == pytest.approx((min(float(np.min(im.get_array())) for im in images), max(maxima)))
     colorbars = [ax for ax in fig.axes if getattr(ax, "_colorbar", None) is not None]
     assert len(colorbars) == 1 and colorbars[0]._colorbar.mappable.norm is images[0].norm
-    assert all(len(ax.child_axes) == 1 for ax in panels)  # a zoom inset in each phase
-    assert all(ax.get_legend() is None for ax in panels) and len(fig.legends) == 1  # one legend for the phases
+    zooms = [ax for ax in fig.axes if ax.get_gid() == "zoom"]
+    assert len(zooms) == 4 and all(ax.child_axes == [] for ax in panels)  # a zoom per concurrence, beside the view
+    legends = fig.legends + [ax.get_legend() for ax in panels + colorbars if ax.get_legend() is not None]
+    assert all(ax.get_legend() is None for ax in panels) and len(legends) == 1  # one legend for the phases
+    assert legends[0].axes is colorbars[0]  # above the colour bar, beside the panels
     fig.savefig(io.BytesIO(), format="png")
+
+
+def _recording_figure():
+    """plot_recording of the synthetic recording: frame 4 (shown) holds track 2 in slot 1, so a mode's index and
+    its track differ there."""
+    from jaxgaze.plotting import plot_recording
+
+    conc, tracks = _synthetic_recording()
+    T = len(np.asarray(conc.count))
+    eyes = EYES[:6]
+    rays = GazeRays.stack([GazeRays(eyes, np.asarray(conc.locations)[t, [0, 0, 0, 1, 1, 1]] - eyes, 0.05)
+                           for t in range(T)])
+    assert np.asarray(tracks.track_ids)[4].tolist() == [0, 2]
+    return plot_recording(rays, conc, tracks), conc, tracks
+
+
+def _top_views(fig):
+    return [ax for ax in fig.axes if by_gid(ax, "saliency MIP")]
+
+
+def test_recording_a_concurrence_has_its_track_colour_in_every_panel():
+    """The same track is the same colour in the top views (dot, ellipse, zoom) and in the trajectory panel."""
+    fig, conc, tracks = _recording_figure()
+    (trajectory_ax,) = [ax for ax in fig.axes if by_gid(ax, "births")]
+    trajectories = tracks.trajectories(conc)
+    track_colour = {track: to_rgba(by_gid(trajectory_ax, f"track {track}")[0].get_color()) for track in trajectories}
+    assert len(set(track_colour.values())) == 3
+    checked = set()
+    for ax in _top_views(fig):
+        (modes,) = by_gid(ax, "modes")
+        ellipses = by_gid(ax, "mode ellipse")
+        for xy, face, ellipse in zip(modes.get_offsets(), modes.get_facecolors(), ellipses):
+            # the track through this location
+            (track,) = [k for k, traj in trajectories.items()
+                        if np.any(np.all(np.isclose(traj["locations"][:, :2], xy, atol=1e-6), axis=1))]
+            assert tuple(face) == pytest.approx(track_colour[track])
+            assert to_rgba(ellipse.get_edgecolor()) == pytest.approx(track_colour[track])
+            checked.add(track)
+    assert checked == {0, 1, 2}  # track 2 is slot 1 of frame 4, where slot 1 was track 1 before
+    for zoom in [ax for ax in fig.axes if ax.get_gid() == "zoom"]:
+        (modes,) = by_gid(zoom, "modes")
+        track = int(zoom.get_title().split()[-1])
+        centre = np.mean([zoom.get_xlim(), zoom.get_ylim()], axis=1)
+        (k,) = [k for k, xy in enumerate(modes.get_offsets()) if np.allclose(xy, centre, atol=1e-4)]
+        assert tuple(modes.get_facecolors()[k]) == pytest.approx(track_colour[track])
+    fig.savefig(io.BytesIO(), format="png")
+
+
+def test_recording_every_concurrence_has_its_ellipse_in_its_panel_and_a_zoom():
+    """Every concurrence of a shown frame has its 90 % ellipse in the top view itself and, since the ellipse is
+    centimetres across on a view metres wide, a zoom of its own where the ellipse spans much of the window."""
+    fig, conc, _ = _recording_figure()
+    zooms = [ax for ax in fig.axes if ax.get_gid() == "zoom"]
+    total = 0
+    for ax in _top_views(fig):
+        (modes,) = by_gid(ax, "modes")
+        ellipses = by_gid(ax, "mode ellipse")
+        assert len(ellipses) == len(modes.get_offsets()) > 0
+        for xy, ellipse in zip(modes.get_offsets(), ellipses):
+            np.testing.assert_allclose(ellipse.center, xy, atol=1e-6)
+            (zoom,) = [z for z in zooms if any(np.allclose(e.center, xy, atol=1e-6) and
+                                               z.get_xlim()[0] < xy[0] < z.get_xlim()[1] and
+                                               z.get_ylim()[0] < xy[1] < z.get_ylim()[1]
+                                               for e in by_gid(z, "mode ellipse"))]
+            assert max(ellipse.width, ellipse.height) > 0.25 * np.diff(zoom.get_xlim())[0]
+            total += 1
+    assert total == len(zooms) == 6  # frames 0, 2 and 4, two concurrences each
+
+
+def test_recording_colourbar_says_what_the_field_is_and_its_units_and_the_legend_is_beside_the_panels():
+    fig, _, _ = _recording_figure()
+    (colorbar,) = [ax for ax in fig.axes if getattr(ax, "_colorbar", None) is not None]
+    label = colorbar.get_ylabel()
+    assert "saliency" in label and "rad$^{-1}$" in label and "mean" in label  # what, units, normalisation
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    legends = fig.legends + [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+    (legend,) = [lg for lg in legends if any(t.get_text().startswith("concurrence") for t in lg.get_texts())]
+    box = legend.get_window_extent(renderer)
+    row = [ax.get_window_extent(renderer) for ax in _top_views(fig) + [colorbar]]
+    right, bottom, top = max(b.x1 for b in row), min(b.y0 for b in row), max(b.y1 for b in row)
+    assert bottom < 0.5 * (box.y0 + box.y1) < top  # level with the top views, not above the figure's title
+    assert box.x0 - right < 0.05 * fig.bbox.width

@@ -31,6 +31,7 @@ from jaxgaze.bias.looking import (
     target_direction_head,
 )
 from jaxgaze.bias.speech import SpeechSegments, choose_partner, speaking_at
+from jaxgaze.rays import check_distance
 
 __all__ = ["BIAS_FRAME_COLUMNS", "DEFAULT_NUM_FRAMES", "BiasAdaptation", "BiasInputError", "adapt_bias"]
 
@@ -195,7 +196,8 @@ def adapt_bias(
     Raises :class:`BiasInputError` (a ``ValueError`` naming the argument and, where one
     applies, the frame index) for wrong shapes, NaN/inf, decreasing times, a target at
     the eyes, an unknown method, too few frames for LMedS, no candidate frame, or a
-    posterior with non-finite draws.
+    posterior with non-finite draws. A target more than 100 m from the eyes is a
+    :class:`~jaxgaze.rays.UnitWarning` (millimetres?; :func:`jaxgaze.rays.check_distance`).
     """
     if method not in METHODS:
         raise BiasInputError(f"unknown method {method!r}; choose one of {METHODS}", "method")
@@ -231,6 +233,7 @@ def adapt_bias(
     if close.size:
         i = int(close[0])
         raise BiasInputError(f"the target is at the eyes (closer than 1 mm) in frame {frames[i]}", "target", i)
+    check_distance(np.linalg.norm(target - eye, axis=1), "the distance from the eyes to the target", frames)
 
     u = np.asarray(target_direction_head(jnp.asarray(eye), jnp.asarray(target), jnp.asarray(R)))
     head_angle = np.asarray(head_target_angle(jnp.asarray(u)))

@@ -14,6 +14,7 @@ Where each equation and section lives:
 | eq. 2: the convex apex programme ``min ξ + λα`` | ``solve_cone_apex`` | ``calibration/cone_fit.py`` |
 | eq. 4: bandwidth ``h`` from perspective distances | ``calibrate_cone`` (with ``jaxgaze.geometry.perspective_distance``) | ``calibration/cone_fit.py`` |
 | Sec. 3.2, Bayesian: posterior of ``p``, ``v``, ``h`` with outliers | ``calibration_model``, ``calibration_log_likelihood``, ``calibrate_cone_posterior``, ``calibrate_cone_posterior_batch`` | ``calibration/posterior.py`` |
+| Sec. 3.2: the point estimate against the posterior (the apex is loose along the ray) | ``needs_posterior``, ``choose_calibration`` | ``calibration/posterior.py`` |
 """
 
 from jaxgaze.calibration.cone_fit import (
@@ -32,6 +33,9 @@ from jaxgaze.calibration.posterior import (
     calibrate_cone_posterior,
     calibrate_cone_posterior_batch,
     CalibrationPosterior,
+    CalibrationChoice,
+    needs_posterior,
+    choose_calibration,
     MAX_EYE_OFFSET,
 )
 
@@ -49,5 +53,8 @@ __all__ = [
     "calibrate_cone_posterior",
     "calibrate_cone_posterior_batch",
     "CalibrationPosterior",
+    "CalibrationChoice",
+    "needs_posterior",
+    "choose_calibration",
     "MAX_EYE_OFFSET",
 ]

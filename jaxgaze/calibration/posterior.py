@@ -34,10 +34,12 @@ import numpyro
 import numpyro.distributions as dist
 from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
+from jaxgaze.calibration.cone_fit import ConeCalibration
 from jaxgaze.cone import cone_log_density
 from jaxgaze.geometry import angle_between, unit
 from jaxgaze._checks import bucket_size
-from jaxgaze.nuts import mixing_diagnostics, mixing_result, posterior_summary, quiet_single_chain, sample_nuts
+from jaxgaze.nuts import (mixing_diagnostics, mixing_result, posterior_summary, quiet_single_chain, sample_nuts,
+                          set_units, split_chains)
 from jaxgaze.rays import GazeRays
 from jaxgaze.results import RESULTS, throw_if_failed
 
@@ -50,13 +52,20 @@ __all__ = [
     "calibrate_cone_posterior",
     "calibrate_cone_posterior_batch",
     "CalibrationPosterior",
+    "CalibrationChoice",
+    "needs_posterior",
+    "choose_calibration",
     "MAX_EYE_OFFSET",
+    "UNITS",
 ]
 
 #: The farthest a wearer's eye centre can plausibly be from the head-mounted camera (metres); a
 #: posterior mean beyond it is ``RESULTS.implausible``.
 MAX_EYE_OFFSET = 0.3
 _SUMMARY_VARS = ["eye_center", "direction", "bandwidth", "outlier_share"]
+#: Units of the posterior's variables, in their attributes (and so in the netCDF); "1": no unit.
+UNITS = {"eye_center": "m", "direction": "1", "bandwidth": "rad", "outlier_share": "1", "inlier_probability": "1",
+         "points": "m", "diverging": "1", "acceptance_rate": "1", "n_steps": "1", "lp": "1"}
 
 
 def _points(points) -> np.ndarray:
@@ -134,7 +143,9 @@ class CalibrationPosterior(NamedTuple):
     """Posterior of one wearer's calibration.
 
     Attributes:
-        idata: ``arviz.InferenceData`` (posterior, sample stats, observed points).
+        idata: ``arviz.InferenceData`` (posterior, sample stats, observed points), each chain as its two
+            halves (:func:`jaxgaze.nuts.split_chains`: arviz's own r-hat and ESS are then those reported),
+            each variable with its ``units`` attribute (:data:`UNITS`).
         summary: ``az.summary`` table (mean, sd, 90% HDI, bulk and tail ESS, split r-hat) of
             the main parameters (:func:`jaxgaze.nuts.posterior_summary`).
         eye_center, direction: posterior means, camera frame (direction renormalised).
@@ -188,6 +199,83 @@ class CalibrationPosterior(NamedTuple):
         angle = float(_angles_to(direction[None], self.direction)[0])
         offset = _perpendicular(np.asarray(eye_center, dtype=float) - self.eye_center, self.direction)
         return angle <= direction_radius, float(np.linalg.norm(offset)) <= eye_radius
+
+
+    def region_level(self, eye_center) -> float:
+        """The smallest credible level whose eye-centre region holds ``eye_center``: the share of draws
+        nearer the posterior mean than it, in the Mahalanobis metric of the draws' covariance (all three
+        axes, the one along the ray included). A point outside the 90% region has a level above 0.9."""
+        draws = np.asarray(self.samples["eye_center"], float)
+        centred = draws - draws.mean(0)
+        precision = np.linalg.pinv(np.cov(centred.T))
+        offset = np.asarray(eye_center, float) - draws.mean(0)
+        return float(np.mean(np.einsum("si,ij,sj->s", centred, precision, centred) < offset @ precision @ offset))
+
+    def to_cone(self) -> ConeCalibration:
+        """The posterior means as a :class:`ConeCalibration` (α and ξ NaN: eq. 2 is not solved; inliers: the
+        points with a mean inlier probability above 0.5; ``result`` the posterior's)."""
+        inliers = np.asarray(self.samples["inlier_probability"]).mean(0) > 0.5
+        return ConeCalibration(eye_center=np.asarray(self.eye_center, float), direction=np.asarray(self.direction, float),
+                               bandwidth=np.float64(self.bandwidth), alpha=np.float64(np.nan), xi=np.float64(np.nan),
+                               inliers=inliers, result=self.result)
+
+
+class CalibrationChoice(NamedTuple):
+    """The calibration to use, and how the point estimate compared with the posterior (:func:`choose_calibration`).
+
+    Attributes:
+        cone: the :class:`ConeCalibration` to use: the point estimate, or the posterior means.
+        method: ``"ransac+cone"`` or ``"posterior mean"``.
+        disagrees: the point estimate's eye centre lies outside the posterior's ``level`` region, or
+            more than :data:`MAX_EYE_OFFSET` from the camera.
+        region_level: :meth:`CalibrationPosterior.region_level` of the point estimate's eye centre.
+        distance: metres between the point estimate's eye centre and the posterior mean.
+        eye_distance: the point estimate's eye centre's distance from the camera (m).
+        message: when it disagrees, one line naming both eye centres, their distance, why, and which is used.
+    """
+
+    cone: ConeCalibration
+    method: str
+    disagrees: bool
+    region_level: float
+    distance: float
+    eye_distance: float
+    message: str = ""
+
+
+def needs_posterior(fit: ConeCalibration) -> bool:
+    """Whether a point estimate (RANSAC + eq. 2) needs the posterior to place its eye centre: the apex is more
+    than :data:`MAX_EYE_OFFSET` from the camera, where no eye of a head-mounted camera's wearer is (the apex of
+    Park et al. 2012, eq. 2 is loose along the ray)."""
+    return float(np.linalg.norm(np.asarray(fit.eye_center, float))) > MAX_EYE_OFFSET
+
+
+def choose_calibration(fit: ConeCalibration, posterior: CalibrationPosterior, level: float = 0.9
+                       ) -> CalibrationChoice:
+    """The better of a point estimate ``fit`` (Park et al. 2012, Sec. 3.2) and the posterior's means.
+
+    The point estimate *disagrees* with the posterior when its eye centre lies outside the
+    posterior's ``level`` region (:meth:`CalibrationPosterior.region_level` ``> level``) or when it
+    is more than :data:`MAX_EYE_OFFSET` from the camera (:func:`needs_posterior`). Then the
+    posterior means are used, if the posterior succeeded; otherwise the point estimate is kept.
+    """
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level must lie in (0, 1), got {level!r}")
+    eye = np.asarray(fit.eye_center, float)
+    region, distance, eye_distance = posterior.region_level(eye), float(np.linalg.norm(eye - posterior.eye_center)), \
+        float(np.linalg.norm(eye))
+    why = ([f"outside the posterior's {100 * level:g}% region (its {100 * region:.0f}% region)"] if region > level
+           else []) + ([f"{eye_distance:.2f} m from the camera (more than {MAX_EYE_OFFSET:g} m)"]
+                       if needs_posterior(fit) else [])
+    use_posterior = bool(why) and posterior.succeeded
+    then = "using the posterior mean" if use_posterior else "the posterior failed, so the point estimate is kept"
+    vector = lambda v: "(" + ", ".join(f"{x:.3f}" for x in v) + ") m"  # noqa: E731
+    message = (f"the RANSAC eye centre {vector(eye)} is {distance:.2f} m from the posterior mean "
+               f"{vector(posterior.eye_center)}, {' and '.join(why)}: the apex is loose along the gaze ray; {then}"
+               if why else "")
+    return CalibrationChoice(cone=posterior.to_cone() if use_posterior else fit,
+                             method="posterior mean" if use_posterior else "ransac+cone", disagrees=bool(why),
+                             region_level=region, distance=distance, eye_distance=eye_distance, message=message)
 
 
 def _angles_to(directions: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -313,14 +401,15 @@ def _fit(ys, key, num_warmup, num_samples, num_chains, init_eye, init_dir, progr
         draws = {k: v[w] for k, v in values.items() if k != "direction_raw"}
         draws["inlier_probability"] = draws["inlier_probability"][..., :m]
         with quiet_single_chain(num_chains):
-            idata = az.from_dict(
+            idata = split_chains(az.from_dict(
                 posterior=draws,
                 sample_stats={k: v[w] for k, v in stats.items()},
                 observed_data={"points": y},
                 dims={"eye_center": ["axis"], "direction": ["axis"], "inlier_probability": ["point"],
                       "points": ["point", "axis"]},
                 coords={"axis": ["x", "y", "z"], "point": np.arange(m)},
-            )
+            ))
+        set_units(idata, UNITS)
         summary = posterior_summary(idata, _SUMMARY_VARS)
         diagnostics = mixing_diagnostics(idata, _SUMMARY_VARS)
         samples = {k: v.reshape((-1,) + v.shape[2:]) for k, v in draws.items()}

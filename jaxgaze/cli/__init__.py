@@ -9,18 +9,21 @@ gaze bias, Siegfried et al. 2017), :mod:`~jaxgaze.cli.joint` (biases, cone width
 and concurrences of a group, inferred together), :mod:`~jaxgaze.cli.attend` and
 :mod:`~jaxgaze.cli.fit_gaze` (attention from head pose, Yücel et al. 2013). Exit status 0 on
 success (``joint`` and ``calibrate --posterior``: 1 when the fit did not succeed, files written); 2 for bad input, with one line
-``jaxgaze: error: <what> (<file>:<line>)`` on stderr and no partial output file; 130 on Ctrl-C.
+``jaxgaze: error: <what> (<file>:<line>)`` on stderr and no partial output file; 130 on Ctrl-C, 143 on
+SIGTERM (the old outputs untouched: a command's outputs change together or not at all). An output that is
+an input file is refused. Names and paths on stderr have their control characters escaped.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 
 from jaxgaze.cli import attend, bias, calibrate, concurrences, convert, demo, fit_gaze, joint
-from jaxgaze.cli._common import negative_values_joined, run_command
+from jaxgaze.cli._common import negative_values_joined, run_command, warn
 from jaxgaze.cli._interrupt import exit_status, handle_interrupts
-from jaxgaze.runtime import enable_compilation_cache
+from jaxgaze.runtime import CompilationCacheWarning, enable_compilation_cache
 
 __all__ = ["main", "console_main", "build_parser"]
 
@@ -54,15 +57,31 @@ def main(argv=None) -> int:
     return run_command(args.run, args)
 
 
+_SHOWN_WARNINGS = set()
+
+
+def _warning_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning no command caught, as one ``jaxgaze: warning: ...`` line, each text once (JAX's
+    complaints about its compilation cache: once in all)."""
+    text = str(message)
+    key = "cache" if "persistent compilation cache" in text or category is CompilationCacheWarning else text
+    if key not in _SHOWN_WARNINGS:
+        _SHOWN_WARNINGS.add(key)
+        warn(text)
+
+
 def console_main() -> None:
     """The ``jaxgaze`` console script: :func:`main` on ``sys.argv``, exit with its status.
 
     JAX's persistent compilation cache is on (:func:`jaxgaze.runtime.enable_compilation_cache`;
     ``JAXGAZE_CACHE_DIR`` names its folder, ``off`` switches it off). Ctrl-C ends it with status
-    130 and no output file (:mod:`~jaxgaze.cli._interrupt`), through ``os._exit``: the interpreter's normal shutdown, with XLA's threads still running the
-    interrupted computation, can crash. :func:`main`, run in-process, returns 130 instead.
+    130 (SIGTERM: 143) and the old outputs untouched (:mod:`~jaxgaze.cli._interrupt`), through ``os._exit``: the interpreter's normal shutdown, with XLA's threads still running the
+    interrupted computation, can crash. :func:`main`, run in-process, returns 130 instead. Warnings
+    that no command caught are one line each. The console script itself is :mod:`jaxgaze_console`,
+    which handles the signals before this package is imported.
     """
     handle_interrupts()
+    warnings.showwarning = _warning_line
     try:
         enable_compilation_cache()  # a second run pays no compilation; JAXGAZE_CACHE_DIR=off switches it off
     except OSError as error:  # an unwritable cache folder costs speed, not the answer

@@ -1,46 +1,53 @@
 """What the commands share: argument types, the options every command has (``--out`` and the other
-outputs, checked before any work; ``-q``), the one-line summary, and the mapping of errors to exit
-statuses (0 ok, 2 bad input with one line on stderr, 130 on Ctrl-C: see :mod:`jaxgaze.cli._interrupt`).
+outputs, checked before any work, also against the inputs; ``-q``), the one-line summary, and the
+mapping of errors to exit statuses (0 ok, 2 bad input with one line on stderr, 130 on Ctrl-C and 143 on
+SIGTERM: see :mod:`jaxgaze.cli._interrupt`). Everything it prints is one line: control characters in
+names and paths are escaped (:func:`printable`).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import math
-import os
 import re
 import sys
+import warnings
 
-from jaxgaze.cli._interrupt import STATE
+from jaxgaze.cli._arguments import CommandError, int_at_least, negative_values_joined, positive_float
+from jaxgaze.cli._files import check_output, check_outputs, declare_inputs, writing
+from jaxgaze.cli._interrupt import STATE, interrupt_status
 from jaxgaze.io.text import InputFileError
+from jaxgaze.rays import UnitWarning
 
 __all__ = ["CommandError", "positive_float", "int_at_least", "QUIET_HELP", "add_quiet", "add_output",
            "add_batch_options", "negative_values_joined", "show_progress", "check_output", "check_outputs", "writing",
-           "summary", "warn", "run_command", "error_line"]
+           "summary", "stage", "warn", "run_command", "error_line", "TRUST_UNITS_HELP", "add_trust_units", "unit_rule",
+           "declare_inputs", "printable"]
 
 
-class CommandError(Exception):
-    """A bad argument or an output that cannot be written (input files raise
-    :class:`~jaxgaze.io.text.InputFileError`): ``what`` and the ``path`` it concerns, if any."""
+#: Characters that would break a line or reach the terminal as a command: C0/C1 controls, line and
+#: paragraph separators, and the bidirectional overrides that reorder what is shown.
+_UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\u200e\u200f\u202a-\u202e\u2066-\u2069]")
 
-    def __init__(self, what: str, path=None):
-        self.what = " ".join(str(what).split())  # always one line
-        self.path = None if path is None else os.fspath(path)
-        self.line = None
-        super().__init__(self.what)
+
+def printable(text) -> str:
+    """``text`` with every control character escaped as Python writes it (``\\n``, ``\\x1b``): a name
+    or path from a file stays on one line and sends no escape sequence to the terminal."""
+    return _UNPRINTABLE.sub(lambda m: repr(m[0])[1:-1], str(text))
 
 
 def error_line(error) -> str:
-    """``what (path:line)``, ``what (path)`` or ``what``: the one line for an error."""
+    """``what (path:line)``, ``what (path)`` or ``what``: the one line for an error (:func:`printable`)."""
     if error.path is None:
-        return error.what
-    return f"{error.what} ({error.path})" if error.line is None else f"{error.what} ({error.path}:{error.line})"
+        return printable(error.what)
+    where = error.path if error.line is None else f"{error.path}:{error.line}"
+    return printable(f"{error.what} ({where})")
 
 
 def run_command(command, args) -> int:
     """``command(args)`` → its exit status, once :func:`check_outputs` passed; file and argument errors → 2,
-    Ctrl-C → 130, one line on stderr."""
+    Ctrl-C → 130 (SIGTERM in the console script: 143), one line on stderr."""
+    STATE["interrupted"] = False
     try:
         check_outputs(args)
         return int(command(args) or 0)
@@ -48,39 +55,9 @@ def run_command(command, args) -> int:
         print(f"jaxgaze: error: {error_line(error)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("jaxgaze: interrupted", file=sys.stderr)
-        return 130
-
-
-# ---------------------------------------------------------------------------
-# Argument types
-
-
-def positive_float(text: str) -> float:
-    """A positive finite number."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text!r}")
-    return value
-
-
-def int_at_least(minimum: int):
-    """An argument type: an integer ≥ ``minimum``."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {value}")
-        return value
-
-    parse.__name__ = f"integer >= {minimum}"
-    return parse
+        status, line = interrupt_status()
+        print(line, file=sys.stderr)
+        return status
 
 
 #: What ``-q`` means in every command.
@@ -102,35 +79,6 @@ def add_output(parser, flag: str, *, what: str = "output", aliases=(), **kwargs)
         parser.add_argument(alias, dest=action.dest, default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     parser.set_defaults(outputs={**(parser.get_default("outputs") or {}), action.dest: (flag, what)})
     return action
-
-
-def negative_values_joined(argv) -> list:
-    """``argv`` made readable to argparse, which takes a value that starts with '-' and is not a plain
-    negative number (``-2``, ``-0.5``) for an option. A point ``--opt -1.7,0,2`` becomes
-    ``--opt=-1.7,0,2``; a single number such as ``-inf`` or ``-1e-3`` (also one of several values,
-    ``--bounds -inf -inf 0 inf inf inf``) gets a trailing space, which argparse reads as a value
-    and ``float`` ignores. Plain negative numbers, and everything after ``--``, are left as they are."""
-    joined, tokens = [], iter(argv)
-    for token in tokens:
-        if token == "--":
-            return joined + [token, *tokens]
-        number_like = token.startswith("-") and not re.fullmatch(r"-\d+|-\d*\.\d+", token) \
-            and all(_is_number(x) for x in token.split(","))
-        if number_like and "," not in token:
-            joined.append(token + " ")
-        elif number_like and joined and re.fullmatch(r"--[a-z][\w-]*", joined[-1]):
-            joined[-1] = f"{joined[-1]}={token}"
-        else:
-            joined.append(token)
-    return joined
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
 
 
 def add_batch_options(parser) -> None:
@@ -155,55 +103,69 @@ def show_progress(args) -> bool:
         return False
 
 
-def check_output(path, what: str = "output") -> None:
-    """Fail before any work if the file ``path`` cannot be written: it is (or names) a directory,
-    or its directory does not exist or is not writable."""
-    text = os.fspath(path)
-    full = os.path.abspath(text)
-    directory = os.path.dirname(full)
-    if os.path.isdir(full) or text.endswith((os.sep, "/")):
-        raise CommandError(f"cannot write {what}: it is a directory; give a file name", path)
-    if not os.path.isdir(directory):
-        raise CommandError(f"cannot write {what}: directory does not exist", path)
-    if not os.access(directory, os.W_OK | os.X_OK):
-        raise CommandError(f"cannot write {what}: directory is not writable", path)
-
-
-def check_outputs(args) -> None:
-    """:func:`check_output` for every output option given (declared with :func:`add_output`), and
-    no two of them the same file."""
-    seen = {}
-    for dest, (flag, what) in (getattr(args, "outputs", None) or {}).items():
-        path = getattr(args, dest, None)
-        if path is None:
-            continue
-        check_output(path, what)
-        other = seen.setdefault(os.path.abspath(os.fspath(path)), flag)
-        if other != flag:
-            raise CommandError(f"{other} and {flag} must be different files", path)
-
-
-@contextlib.contextmanager
-def writing(path, what: str = "output", also: dict | None = None):
-    """Around (atomic) writers of ``path`` (and of the paths of ``also``, ``{path: what}``): an
-    ``OSError`` becomes ``cannot write <what>: ...`` naming the file it concerns (default ``path``)."""
-    STATE["writing"] += 1
-    try:
-        yield
-    except OSError as error:
-        targets = {os.path.abspath(os.fspath(p)): (w, p) for p, w in (also or {}).items() if p is not None}
-        what, path = targets.get(os.path.abspath(os.fspath(error.filename or path)), (what, path))
-        raise CommandError(f"cannot write {what}: {error.strerror or error}", path) from None
-    finally:
-        STATE["writing"] -= 1
-
-
 def summary(args, text: str) -> None:
-    """The command's one summary line on stderr (not with ``-q``)."""
+    """The command's one summary line on stderr (not with ``-q``; :func:`printable`)."""
     if not getattr(args, "quiet", False):
-        print(f"jaxgaze: {text}", file=sys.stderr)
+        print(f"jaxgaze: {printable(text)}", file=sys.stderr)
+
+
+def stage(args, text: str) -> None:
+    """A progress line ``jaxgaze: <stage>…`` on stderr when :func:`show_progress`: between the progress
+    bars of a long command, and where a bar cannot be drawn (a terminal of unknown size)."""
+    if show_progress(args):
+        print(f"jaxgaze: {printable(text)}…", file=sys.stderr, flush=True)
 
 
 def warn(text: str) -> None:
-    """A ``jaxgaze: warning: ...`` line on stderr (also with ``-q``)."""
-    print(f"jaxgaze: warning: {' '.join(str(text).split())}", file=sys.stderr)
+    """A ``jaxgaze: warning: ...`` line on stderr (also with ``-q``; :func:`printable`)."""
+    print(f"jaxgaze: warning: {printable(' '.join(str(text).split()))}", file=sys.stderr)
+
+
+# ---------------------------------------------------------------------------
+# The unit rule
+
+
+#: What ``--trust-units`` means in every command that reads positions or angles.
+TRUST_UNITS_HELP = ("the inputs' units are right although they look implausible (e.g. a scene over 100 m across): "
+                    "report them as a warning and go on; without it, implausible units (millimetres for metres, "
+                    "degrees for radians) are an error")
+
+
+def add_trust_units(parser) -> None:
+    """``--trust-units`` (:data:`TRUST_UNITS_HELP`), the same in every command that reads positions or angles."""
+    parser.add_argument("--trust-units", action="store_true", help=TRUST_UNITS_HELP)
+
+
+@contextlib.contextmanager
+def unit_rule(args, path, frame_ids=None):
+    """The one unit rule of the command line. Inside, a :class:`~jaxgaze.rays.UnitWarning` (a value in an
+    implausible unit: the library warns) is a :class:`CommandError` naming ``path`` and the override; with
+    ``--trust-units`` it stays a warning (passed on to the command's own ``catch_warnings``: enter this one
+    inside it, after its ``simplefilter``). ``path`` may be a function of the message (the file it concerns);
+    ``frame_ids`` (row → frame id) turn a message's ``frame <row>`` into the file's frame id."""
+
+    def named(what: str) -> str:
+        if frame_ids is None:
+            return what
+        return re.sub(r"\bframe (\d+)\b", lambda m: f"frame {frame_ids[int(m[1])]}"
+                      if int(m[1]) < len(frame_ids) else m[0], what)
+
+    if getattr(args, "trust_units", False):
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            try:
+                yield
+            finally:
+                passed_on = list(seen)
+        for w in passed_on:  # after catch_warnings restored the command's own handler
+            message = named(str(w.message)) if issubclass(w.category, UnitWarning) else w.message
+            warnings.warn_explicit(message, w.category, w.filename, w.lineno)
+        return
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UnitWarning)
+        try:
+            yield
+        except UnitWarning as error:
+            what = named(str(error))
+            raise CommandError(f"{what}; pass --trust-units if they are right",
+                               path(what) if callable(path) else path) from None

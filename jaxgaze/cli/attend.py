@@ -10,7 +10,7 @@ import warnings
 
 from jaxgaze.cli._common import add_output, add_quiet
 from jaxgaze.cli._common import CommandError, check_output, int_at_least, positive_float, show_progress, summary, warn
-from jaxgaze.cli._common import writing
+from jaxgaze.cli._common import declare_inputs, writing
 from jaxgaze.io.attend import ATTEND_COLUMNS
 from jaxgaze.io.text import InputFileError
 
@@ -87,6 +87,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="show progress bars (default: when stderr is a terminal)")
     add_quiet(parser)
+    declare_inputs(parser, "video", "model", outputs={"overlay": "--overlay"})
     return parser
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import warnings
 
@@ -10,12 +11,13 @@ import jax
 
 from jaxgaze.bias.adapt import DEFAULT_NUM_FRAMES, BIAS_FRAME_COLUMNS, BiasInputError, adapt_bias
 from jaxgaze.bias.speech import choose_partner
-from jaxgaze.cli._common import (CommandError, add_output, add_quiet, int_at_least, positive_float, show_progress,
-                                 summary, warn, writing)
+from jaxgaze.cli._common import (CommandError, add_output, add_quiet, add_trust_units, declare_inputs, int_at_least,
+                                 positive_float, show_progress, stage, summary, unit_rule, warn, writing)
 from jaxgaze.io.bias_report import BIAS_JSON_FORMAT, bias_record, write_bias_report
 from jaxgaze.io.gaze import REFERENCE_AXES, GazeFileError, parse_point, read_gaze, read_targets_csv
 from jaxgaze.io.joint import read_speech
 from jaxgaze.io.text import InputFileError
+from jaxgaze.rays import UnitWarning
 from jaxgaze.results import RESULTS
 
 _DESCRIPTION = """\
@@ -100,26 +102,31 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
       help="OpenFace input: drop frames with confidence < C (default 0.75)")
     add_output(p, "--per-frame", what="per-frame table", default=None, metavar="PER_FRAME.csv", help="also write "
                "the per-frame table as CSV (columns " + ", ".join(BIAS_FRAME_COLUMNS) + "; booleans as 0/1)")
+    add_trust_units(p)
     add_quiet(p)
+    declare_inputs(p, "gaze", "speech", "targets")
     return p
 
 
 def _targets(args, track):
-    """``((T, 3) targets, where they came from)``: --targets (a point or a CSV), else GAZE.csv's columns."""
+    """``((T, 3) targets, {"targets": their file or None, "targets_from": what in it})``: --targets (a point
+    or a CSV), else GAZE.csv's columns."""
     if args.targets is None and track.target is None:
         raise CommandError(("an OpenFace file has no target positions" if track.format == "openface" else "no target "
                             "positions: GAZE.csv has no tx, ty, tz columns") + "; pass --targets X,Y,Z or a CSV of "
                            f"frame, tx, ty, tz (the partner's eye midpoint, metres, {REFERENCE_AXES[track.reference]})",
                            args.gaze)
     if args.targets is None:
-        return track.target, "GAZE.csv columns tx, ty, tz"
+        return track.target, {"targets": args.gaze, "targets_from": "the gaze file's columns tx, ty, tz"}
     try:
         point = parse_point(args.targets)
     except ValueError as error:
         raise CommandError(f"--targets: {error}") from None
     if point is None:
-        return read_targets_csv(args.targets, track.frame), args.targets
-    return point, "constant " + ",".join(repr(float(x)) for x in point)
+        return read_targets_csv(args.targets, track.frame), {"targets": args.targets,
+                                                             "targets_from": "a targets CSV: frame, tx, ty, tz"}
+    return point, {"targets": None, "targets_from": "--targets " + ",".join(repr(float(x)) for x in point)
+                   + " (one point for every frame)"}
 
 
 def _times(args, track):
@@ -156,11 +163,19 @@ def run(args) -> int:
             target, target_source = _targets(args, track)
             times, fps = _times(args, track)
             segments, partner = _speech(args)
-        result = adapt_bias(track.gaze_angles, track.R_world_from_head, track.eye, target, times, segments,
-                            partner=partner, frames=track.frame, method=args.method, num_frames=args.frames,
-                            window_s=args.window, max_head_angle_deg=args.max_head_angle_deg,
-                            threshold_deg=args.threshold_deg, key=jax.random.key(args.seed), num_warmup=args.samples,
-                            num_samples=args.samples, progress_bar=show_progress(args))
+        nuts = f": NUTS, {args.samples} warm-up steps and {args.samples} draws; compiles first"
+        stage(args, f"estimating the gaze bias from {len(track.frame)} frames ({args.method}{nuts * (args.method == 'bayes')})")
+        with warnings.catch_warnings(record=True) as fitting:  # the unit rule: an error unless --trust-units
+            warnings.simplefilter("always")
+            with unit_rule(args, args.targets if args.targets and os.path.isfile(args.targets) else args.gaze):
+                result = adapt_bias(track.gaze_angles, track.R_world_from_head, track.eye, target, times, segments,
+                                    partner=partner, frames=track.frame, method=args.method, num_frames=args.frames,
+                                    window_s=args.window, max_head_angle_deg=args.max_head_angle_deg,
+                                    threshold_deg=args.threshold_deg, key=jax.random.key(args.seed), num_warmup=
+                                    args.samples, num_samples=args.samples, progress_bar=show_progress(args))
+        caught += [w for w in fitting if issubclass(w.category, UnitWarning)]  # with --trust-units: ours
+        for w in (w for w in fitting if not issubclass(w.category, UnitWarning)):  # any other as it was
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     except BiasInputError as error:  # every input was read: the one line keeps their warnings (dropped frames)
         frame_hint = error.argument == "target" or "the head within" in str(error)
         hint = f": is the target in the {REFERENCE_AXES[track.reference]}, in metres?" if frame_hint else ""
@@ -177,7 +192,7 @@ def run(args) -> int:
         warn(note)
     record = bias_record(result, fps=fps, seed=args.seed, dropped=track.dropped,
                          inputs={"gaze": args.gaze, "format": track.format, "frame_of_reference": track.reference,
-                                 "speech": args.speech, "targets": target_source})
+                                 "speech": args.speech, **target_source})
     with writing(args.out):
         write_bias_report(args.out, record, args.per_frame)
     if not result.estimate.succeeded:

@@ -10,7 +10,8 @@ import sys
 import warnings
 
 from jaxgaze.cli._common import add_output, add_quiet
-from jaxgaze.cli._common import CommandError, check_output, int_at_least, summary, warn, writing
+from jaxgaze.cli._common import CommandError, check_output, int_at_least, show_progress, summary, warn, writing
+from jaxgaze.cli._common import add_trust_units, declare_inputs, stage, unit_rule
 
 DEFAULT_SAMPLES = 500
 
@@ -27,7 +28,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "JSON with the eye centre (metres) and unit "
                     "gaze direction in A's camera frame (+x forward, +y left, +z up) and the bandwidth h "
                     "(radians): wearer, frame, eye_center, direction, bandwidth, alpha, xi, num_points, "
-                    "num_inliers, method.",
+                    "num_inliers, method. Park's apex is loose along the ray: one more than 0.3 m from the camera, "
+                    "or outside the posterior's 90% region, is said and replaced by the posterior mean (sampled "
+                    "then; method 'posterior mean', the RANSAC estimate under 'point_estimate').",
     )
     parser.add_argument("poses_a", metavar="POSES_A", help="camera poses of the wearer (images.txt or .csv)")
     parser.add_argument("poses_b", metavar="POSES_B", help="camera poses of the partner A looks at")
@@ -42,7 +45,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default 0)")
     parser.add_argument("--wearer", default=None, metavar="NAME",
                         help="name of the wearer, matched to the 'person' column by 'concurrences "
-                             "--calibration' (default: the file name of POSES_A without its extension)")
+                             "--calibration' (default: the file name of POSES_A without its extension; when POSES_A "
+                             "and POSES_B are one file, e.g. a joint COLMAP model, 'camera_A' after --camera-id A, "
+                             "else --name-prefix A without its trailing '/')")
     parser.add_argument("--frame-pattern", default=None, metavar="REGEX",
                         help="COLMAP files: the frame id is the one group of this regular expression, searched for "
                              "in each image name, e.g. '_(\\d+)_leftImg8bit' (default: the number in the names, or "
@@ -53,7 +58,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--name-prefix", nargs=2, default=("", ""), metavar=("A", "B"),
                         help="keep only the images whose names start with A in POSES_A and with B in POSES_B "
                              "('': all)")
+    add_trust_units(parser)
     add_quiet(parser)
+    declare_inputs(parser, "poses_a", "poses_b")
     return parser
 
 
@@ -97,7 +104,8 @@ def _points(args):
             if poses_a.num_frames < 3:
                 raise CommandError(f"only {poses_a.num_frames} frame(s) in common with {args.poses_b}; calibration "
                                    "needs at least 3", args.poses_a)
-            points = points_of_regard(poses_a, poses_b)
+            with unit_rule(args, args.poses_a):  # millimetres: an error unless --trust-units
+                points = points_of_regard(poses_a, poses_b)
     except InputFileError:
         raise
     except (ValueError, CommandError) as error:  # both files were read: their warnings first
@@ -109,8 +117,22 @@ def _points(args):
     return points, sources
 
 
+def _wearer(args) -> str:
+    """--wearer, or after the selection of POSES_A in a joint model (one file), else POSES_A's file name."""
+    if args.wearer is not None:
+        return args.wearer.strip()
+    camera, prefix = args.camera_id[0], args.name_prefix[0]
+    if os.path.abspath(args.poses_a) == os.path.abspath(args.poses_b):
+        if camera is not None:
+            return f"camera_{camera}"
+        if prefix:
+            return prefix.rstrip("/\\_-. ") or prefix
+    return os.path.splitext(os.path.basename(args.poses_a))[0].strip()
+
+
 def _posterior(args, points, fit, key):
-    """NUTS from the point estimate (its diagnostics and summaries keep arviz's messages off stderr)."""
+    """NUTS from the point estimate (its diagnostics and summaries keep arviz's messages off stderr); a
+    progress bar on a terminal."""
     import jax
     import numpy as np
 
@@ -119,19 +141,23 @@ def _posterior(args, points, fit, key):
     try:
         return calibrate_cone_posterior(points, key=jax.random.fold_in(key, 1), num_warmup=args.samples,
                                         num_samples=args.samples, init_eye_center=np.asarray(fit.eye_center),
-                                        init_direction=np.asarray(fit.direction))
+                                        init_direction=np.asarray(fit.direction), progress_bar=show_progress(args))
     except ValueError as error:
         raise CommandError(f"posterior sampling failed: {error}", args.poses_a) from None
+
+
+def _vector(values) -> str:
+    return "(" + ", ".join(f"{float(x):.3f}" for x in values) + ") m"
 
 
 def run(args) -> int:
     import jax
 
-    from jaxgaze.calibration import MAX_APEX_DISTANCE, calibrate_cone
+    from jaxgaze.calibration import MAX_APEX_DISTANCE, MAX_EYE_OFFSET, calibrate_cone, choose_calibration, needs_posterior
     from jaxgaze.io.calibration import write_calibration_json
     from jaxgaze.results import RESULTS
 
-    wearer = (args.wearer if args.wearer is not None else os.path.splitext(os.path.basename(args.poses_a))[0]).strip()
+    wearer = _wearer(args)
     if not wearer:
         raise CommandError("--wearer must not be empty")
     check_output(args.out)
@@ -141,6 +167,7 @@ def run(args) -> int:
             raise CommandError("--posterior and --out must be different files", args.out)
     points, sources = _points(args)
     key = jax.random.key(args.seed)
+    stage(args, f"calibrating from {len(points)} frame(s): RANSAC, then the refinement (each compiles first)")
     try:
         fit = calibrate_cone(points, key=key, throw=False)
     except ValueError as error:
@@ -152,21 +179,31 @@ def run(args) -> int:
                            "together?)", args.poses_a)
     if not bool(fit.succeeded):
         raise CommandError(f"calibration failed: {fit.message}", args.poses_a)
-    posterior = None if args.posterior is None else _posterior(args, points, fit, key)
+    posterior = choice = None
+    if args.posterior is not None or needs_posterior(fit):
+        stage(args, "sampling the posterior (NUTS; it compiles first)" if args.posterior else
+              f"the RANSAC eye centre is {float(fit.eye_distance):.2f} m from the camera (more than "
+              f"{MAX_EYE_OFFSET:g} m): sampling the posterior to place it")
+        posterior = _posterior(args, points, fit, key)
+        choice = choose_calibration(fit, posterior)
+        if choice.disagrees:
+            warn(choice.message)
 
     with writing(args.out, also={args.posterior: "posterior"}):
         record = write_calibration_json(args.out, wearer, fit, posterior=posterior, posterior_path=args.posterior,
-                                        num_warmup=args.samples)
+                                        num_warmup=args.samples, choice=choice)
     if posterior is not None and not posterior.succeeded:
         d = posterior.diagnostics
+        files = args.out if args.posterior is None else f"{args.out} and {args.posterior}"
         print(f"jaxgaze calibrate: the posterior failed: {RESULTS[posterior.result]} (split r-hat "
               f"{d['max_rhat']:.3g}, bulk ESS {d['min_ess_bulk']:.0f}, {d['divergences']} of {d['draws']} divergent, "
-              f"acceptance {d['acceptance_rate']:.2f}); written to {args.out} and {args.posterior} for inspection",
+              f"acceptance {d['acceptance_rate']:.2f}); written to {files} for inspection",
               file=sys.stderr)
         return 1
     d = record["direction"]
+    estimate = " (posterior mean)" if record["method"] == "posterior mean" else ""
     summary(args, f"calibrated '{wearer}' from {record['num_points']} frame(s), {record['num_inliers']} inlier(s): "
-                  f"eye centre ({', '.join(f'{x:.3f}' for x in record['eye_center'])}) m, "
+                  f"eye centre{estimate} {_vector(record['eye_center'])}, "
                   f"{math.degrees(math.atan2(math.hypot(d[1], d[2]), d[0])):.1f}° off the optical axis, "
                   f"h = {record['bandwidth']:.4f} rad; {sources}; written to {args.out}"
                   + (f" and {args.posterior}" if args.posterior else ""))

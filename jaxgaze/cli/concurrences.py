@@ -8,6 +8,7 @@ import argparse
 
 from jaxgaze.cli._common import (CommandError, add_batch_options, add_output, int_at_least, positive_float,
                                  show_progress, summary, warn, writing)
+from jaxgaze.cli._common import add_trust_units, declare_inputs, stage, unit_rule
 from jaxgaze.io.concurrences import MEMBER_COLUMNS, OUTPUT_COLUMNS
 from jaxgaze.io.poses import CAMERA_POSE_COLUMNS
 from jaxgaze.io.rays import CSV_COLUMNS, DEFAULT_BANDWIDTH
@@ -24,8 +25,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                       "over the rows' frames and write one row per (frame, mode) to OUT: "
                     + ", ".join(OUTPUT_COLUMNS) + " (location in m; the covariance's six unique entries in m², "
                       "of a Student-t with degrees_of_freedom). Frames without a concurrence give no row. "
-                      "A bandwidth of 1 rad or more is an error and one over 0.5 rad, or eyes of one frame more "
-                      "than 100 m apart, a warning (degrees? millimetres?).",
+                      "A bandwidth of 1 rad or more is an error, and so is one over 0.5 rad or eyes of one frame "
+                      "more than 100 m apart (degrees? millimetres?) unless --trust-units.",
     )
     parser.add_argument("input", metavar="INPUT.csv", help="primary gaze rays, one row per (frame, person)")
     add_output(parser, "--out", required=True, metavar="OUT.csv", help="output CSV (replaced only on success)")
@@ -54,7 +55,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                                "+x forward, +y left, +z up; c: camera centre, world, metres), and each person's "
                                "gaze ray is p = R_world_from_camera eye_center + c, v = R_world_from_camera "
                                "direction, with the calibration's bandwidth (person = the JSON's 'wearer')")
+    add_trust_units(parser)
     add_batch_options(parser)
+    declare_inputs(parser, "input", "calibration")
     return parser
 
 
@@ -91,20 +94,23 @@ def run(args) -> int:
     bounds = None if args.bounds is None else [args.bounds[:3], args.bounds[3:]]
     with warnings.catch_warnings(record=True) as caught:  # printed once the input has been checked
         warnings.simplefilter("always")
-        if args.calibration:
-            calibrations = [read_calibration_json(path) for path in args.calibration]
-            recording = calibrated_rays(read_camera_poses_csv(args.input), calibrations)
-        else:
-            recording = read_rays_csv(args.input, args.bandwidth)
+        with unit_rule(args, args.input):
+            if args.calibration:
+                calibrations = [read_calibration_json(path) for path in args.calibration]
+                recording = calibrated_rays(read_camera_poses_csv(args.input), calibrations)
+            else:
+                recording = read_rays_csv(args.input, args.bandwidth)
         try:
             options = ConcurrenceOptions(min_rays=args.min_rays, bounds=bounds,
                                          **({"floor_below_eyes": None} if args.no_floor else {}))
-            result = find_concurrences_over_frames(recording.rays, options, frames_per_batch=args.chunk,
-                                                   progress=show_progress(args))
+            with unit_rule(args, args.input, recording.frame_ids):
+                result = find_concurrences_over_frames(recording.rays, options, frames_per_batch=args.chunk,
+                                                       progress=show_progress(args))
         except ValueError as error:
             raise CommandError(str(error).replace("frames_per_batch", "--chunk"), args.input) from None
     for note in dict.fromkeys(str(w.message) for w in caught):
         warn(note)
+    stage(args, "tracking the concurrences" + (f" and drawing the figure {args.figure}" if args.figure else ""))
     tracks = track_concurrences(result)
     with writing(args.out, also={args.members: "members table", args.figure: "figure"}):
         if args.figure is not None:  # first: the slowest to write and the likeliest to fail
@@ -112,7 +118,7 @@ def run(args) -> int:
             write_figure(args.figure, plot_recording(recording.rays, result, tracks, recording.frame_ids, title=title))
         if args.members is not None:
             write_members_csv(args.members, recording, result, tracks)
-        rows = write_concurrences_csv(args.out, recording.frame_ids, result, tracks)
+        rows = write_concurrences_csv(args.out, recording.frame_ids, result, tracks, reference=recording.reference)
     pairs = len(result.mutual_gaze_pairs())
     listed = f" (in {args.members})" if args.members else " (listed with --members)"
     mutual = f"; {pairs} mutual-gaze pair(s){listed}" if pairs else ""

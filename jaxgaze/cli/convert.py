@@ -4,8 +4,10 @@ rays CSV, with each ray's bandwidth from the tool's own uncertainty (``jaxgaze.i
 from __future__ import annotations
 
 import argparse
+import re
 
 from jaxgaze.cli._common import CommandError, add_output, add_quiet, positive_float, summary, warn, writing
+from jaxgaze.cli._common import add_trust_units, declare_inputs, unit_rule
 from jaxgaze.io.convert import GAZE_TOOLS
 from jaxgaze.io.rays import CSV_COLUMNS
 
@@ -25,34 +27,66 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="the tool that wrote the inputs: " + ", ".join(GAZE_TOOLS))
     parser.add_argument("inputs", nargs="+", metavar="IN", help="the tool's output files (Aria: MPS folders)")
     add_output(parser, "--out", required=True, metavar="OUT.csv", help="output rays CSV (replaced only on success)")
-    parser.add_argument("--camera-poses", default=None, metavar="POSES",
+    parser.add_argument("--camera-poses", nargs="+", default=None, metavar="POSES",
                         help="the camera's poses in the world: a COLMAP images.txt or a pose CSV (frame, qw, qx, "
-                             "qy, qz, cx, cy, cz); one pose serves every frame")
+                             "qy, qz, cx, cy, cz); one pose serves every frame. Several pupil exports: one POSES "
+                             "per IN, in order, each placing that wearer's scene camera")
     parser.add_argument("--fps", type=positive_float, default=None, metavar="F",
                         help="frame rate of the time grid for tools with timestamps only (aria: 10, pupil/Neon: 30)")
+    parser.add_argument("--people", default=None, metavar="A,B,...",
+                        help="pupil and aria: one person name per IN, in order, as for 'jaxgaze joint' (default: "
+                             "each file's name, or its recording folder's: ann for ann/exports/000/gaze_positions.csv)")
+    add_trust_units(parser)
     add_quiet(parser)
+    declare_inputs(parser, "inputs", "camera_poses")
     return parser
+
+
+def _option_names(message: str) -> str:
+    """The library's argument names as the command's options."""
+    message = message.replace("pass persons=[...], one name per file", "pass --people A,B,..., one name per IN")
+    message = re.sub(r"pass camera= with one CameraPoses per wearer \([^)]*\)",
+                     "pass --camera-poses with one POSES file per IN", message)
+    message = re.sub(r"one CameraPoses for (\d+) wearers' files: pass one per wearer",
+                     r"one POSES for \1 wearers' files: pass --camera-poses with one POSES file per IN", message)
+    message = re.sub(r"\bcamera= has (\d+) CameraPoses", r"--camera-poses has \1 POSES", message)
+    message = re.sub(r"\bno camera=", "no --camera-poses", message)
+    return re.sub(r"\bpersons=?", "--people", message)
 
 
 def run(args) -> int:
     import warnings
 
     from jaxgaze.io.convert import read_gaze_tool
-    from jaxgaze.io.gaze_tools import MissingExtraError
+    from jaxgaze.io.gaze_tools import MissingExtraError, check_camera_distances
     from jaxgaze.io.poses import read_poses
     from jaxgaze.io.rays import write_rays_csv
+    from jaxgaze.rays import check_units
 
-    camera = None if args.camera_poses is None else read_poses(args.camera_poses).poses
+    camera = None
+    if args.camera_poses is not None:
+        if len(args.camera_poses) > 1 and args.tool != "pupil":
+            raise CommandError(f"--camera-poses: one POSES for {args.tool} (several only for pupil exports, one "
+                               f"per IN), got {len(args.camera_poses)}")
+        camera = [read_poses(path).poses for path in args.camera_poses]
+        camera = camera[0] if len(camera) == 1 else camera
     with warnings.catch_warnings(record=True) as caught:  # printed once the input has been read
         warnings.simplefilter("always")
         try:
-            recording = read_gaze_tool(args.tool, args.inputs, camera=camera, fps=args.fps)
+            people = None if args.people is None else [name.strip() for name in args.people.split(",")]
+            recording = read_gaze_tool(args.tool, args.inputs, camera=camera, fps=args.fps, persons=people)
         except MissingExtraError as error:
             raise CommandError(str(error)) from None
         except ValueError as error:
             if hasattr(error, "path"):
                 raise
-            raise CommandError(str(error), args.inputs[0]) from None
+            raise CommandError(_option_names(str(error)), args.inputs[0]) from None
+        # Units at the door of 'concurrences', checked here too; in the camera's frame also each eye's distance
+        # from the camera, which catches millimetres with one face per frame.
+        with unit_rule(args, args.inputs[0], recording.frame_ids):
+            check_units(recording.rays)
+            if camera is None and args.tool != "aria":
+                check_camera_distances(recording)
     for note in dict.fromkeys(str(w.message) for w in caught):
         warn(note)
     with writing(args.out):

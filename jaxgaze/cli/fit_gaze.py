@@ -9,7 +9,7 @@ import time
 
 from jaxgaze.cli._common import add_output, add_quiet
 from jaxgaze.cli._common import CommandError, check_output, int_at_least, positive_float, show_progress, summary
-from jaxgaze.cli._common import writing
+from jaxgaze.cli._common import stage, writing
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -80,6 +80,8 @@ def run(args) -> int:
     clock = time.perf_counter()
     key_sim, key_fit, key_render = jax.random.split(jax.random.key(args.seed), 3)
     demo_people = 1 if args.demo_video is not None else 0  # one more experimenter, held out
+    stage(args, f"simulating {(args.people + demo_people) * args.sessions} table-top session(s) of {args.duration:g} s "
+                f"at {args.fps:g} fps")
     try:
         sessions = simulate_tabletop_sessions(key_sim, num_people=args.people + demo_people,
                                               sessions_per_person=args.sessions, duration_s=args.duration, fps=args.fps)
@@ -88,6 +90,9 @@ def run(args) -> int:
     num_train = args.people * args.sessions
     X, f1, f2 = training_data(sessions, range(num_train), args.max_frames)
     size = (IMAGE_WIDTH, IMAGE_HEIGHT)  # f2 is a row of the simulator's images
+    stage(args, f"fitting the {args.method} gaze regression on {len(X)} frames"
+                + (": a Gaussian process for the direction f1, then one for the depth f2 (each compiles first)"
+                   if args.method == "gp" else ""))
     if args.method == "gp":
         model = regression.fit_gaze_regression(X, f1, f2, key=key_fit, progress=show_progress(args), image_size=size)
     else:
@@ -107,6 +112,7 @@ def run(args) -> int:
     demo_text = ""
     if args.demo_video is not None:
         demo = sessions[num_train]
+        stage(args, f"rendering the demo video {args.demo_video}")
         frames, _ = render_tabletop_video(demo, key=key_render, num_frames=args.demo_frames)
         demo_text = (f"; demo video {args.demo_video}: {len(frames)} frames at {demo.fps:g} fps, "
                      f"{frames[0].shape[1]}x{frames[0].shape[0]} px (10 lead-in frames of eye contact), focal "

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
 import os
 import re
@@ -12,11 +11,10 @@ import warnings
 
 import numpy as np
 
-from jaxgaze.cli._common import (CommandError, add_output, add_quiet, int_at_least, positive_float, show_progress, warn,
-                                 writing)
+from jaxgaze.cli._common import (CommandError, add_output, add_quiet, add_trust_units, declare_inputs, int_at_least,
+                                 positive_float, show_progress, stage, unit_rule, warn, writing)
 from jaxgaze.io.joint import (JOINT_FRAMES_FORMAT, JOINT_INPUTS_FORMAT, joint_frame_columns, read_joint_gaze, read_speech,
                               speaking_by_person, write_joint_frames, write_joint_netcdf)
-from jaxgaze.io.text import atomic_path
 
 _DESCRIPTION = """\
 Joint inference of a group recording (Park et al. 2012; Siegfried, Odobez et al.
@@ -57,12 +55,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     a("--method", choices=("nuts", "svi"), default="nuts", help="nuts (exact; a minute or two of recording) or "
       "svi (mean-field variational, frames subsampled; long recordings) (default nuts)")
     a("--warmup", default="500", metavar="N", help="NUTS warm-up steps (default 500)")
-    a("--draws", default="500", metavar="N", help="posterior draws, at least 4 (default 500)")
+    a("--draws", default="500", metavar="N", help="posterior draws, at least 8 (default 500)")
     a("--steps", default="3000", metavar="N", help="SVI optimisation steps, at least 10 (default 3000)")
     a("--window-s", default="60", metavar="S", help="a concurrence stays put within windows of S s (default 60)")
     a("--seed", default="0", metavar="S", help="random seed (default 0)")
     a("--min-confidence", default="0.75", metavar="C", help="OpenFace: drop frames with confidence < C (default 0.75)")
+    add_trust_units(p)
     add_quiet(p)
+    declare_inputs(p, "gaze", "speech")
     return p
 
 
@@ -126,13 +126,10 @@ def _check_inputs(args, gaze) -> None:
                            "per second); leave --fps out to use the timestamps")
 
 
-def _check_outputs(args) -> None:
-    """No output overwrites an input (run_command checked the outputs themselves)."""
-    outputs = {os.path.abspath(path): option for option, path in (("--out", args.out), ("--per-frame", args.per_frame))
-               if path is not None}
-    for path in list(args.gaze) + ([args.speech] if args.speech else []):
-        if os.path.abspath(path) in outputs:
-            raise CommandError(f"{outputs[os.path.abspath(path)]} would overwrite an input file", path)
+def _file_of(args, people, message: str):
+    """The GAZE file of the person a message names (``person 'ann'``), else None."""
+    named = re.search(r"person '([^']*)'", message)
+    return args.gaze[people.index(named[1])] if named and named[1] in people else None
 
 
 def _summary(posterior, data, written) -> str:
@@ -156,10 +153,9 @@ def run(args) -> int:
     from jaxgaze.results import RESULTS
 
     warmup, draws, steps, seed, window_s, min_confidence, args.fps = (_number(o, v, t) for o, v, t in (
-        ("--warmup", args.warmup, int_at_least(1)), ("--draws", args.draws, int_at_least(4)),
+        ("--warmup", args.warmup, int_at_least(1)), ("--draws", args.draws, int_at_least(8)),
         ("--steps", args.steps, int_at_least(10)), ("--seed", args.seed, int), ("--window-s", args.window_s,
         positive_float), ("--min-confidence", args.min_confidence, float), ("--fps", args.fps, positive_float)))
-    _check_outputs(args)
     people = _people(args)
     speaker_map = _speaker_map(args, people)
     with warnings.catch_warnings(record=True) as caught:  # printed once every input has been checked
@@ -181,8 +177,16 @@ def run(args) -> int:
                                                     if unmatched else []):
         warn(note)
     try:
-        data = joint_data(gaze.eye_positions, gaze.R_world_from_head, gaze.gaze_angles, present=gaze.present,
-                          speaking=speaking, people=people, fps=fps, window_s=window_s)
+        with warnings.catch_warnings(record=True) as caught:  # the unit rule: an error unless --trust-units
+            warnings.simplefilter("always")
+            with unit_rule(args, lambda what: _file_of(args, people, what), gaze.frames):
+                data = joint_data(gaze.eye_positions, gaze.R_world_from_head, gaze.gaze_angles, present=gaze.present,
+                                  speaking=speaking, people=people, fps=fps, window_s=window_s)
+        for note in dict.fromkeys(str(w.message) for w in caught):
+            warn(note)
+        fit = f"NUTS, {warmup} warm-up steps and {draws} draws" if args.method == "nuts" else f"SVI, {steps} steps"
+        stage(args, f"fitting the joint model to {data.num_frames} frames of {len(people)} people: a start from the "
+                    f"concurrences of each frame, its mode, then {fit} (each stage compiles first; a minute or more)")
         with warnings.catch_warnings(record=True) as caught:  # NumPy's and arviz's numerical noise is dropped
             warnings.simplefilter("always")
             posterior = fit_joint(data, jax.random.key(seed), method=args.method, num_warmup=warmup,
@@ -193,13 +197,11 @@ def run(args) -> int:
     for w in caught:
         if issubclass(w.category, UserWarning) and "jaxgaze" in os.path.normpath(w.filename).split(os.sep):
             warn(str(w.message))
-    # Both go to temporary files, renamed only when both are complete (an error or Ctrl-C leaves neither).
-    with writing(args.out, also={args.out: "output", args.per_frame: "per-frame table"}), \
-            contextlib.ExitStack() as stack:
-        out_tmp = stack.enter_context(atomic_path(args.out))
+    stage(args, f"writing {' and '.join([args.out] + ([args.per_frame] if args.per_frame else []))}")
+    with writing(args.out, also={args.per_frame: "per-frame table"}):  # both replaced together, or neither
         if args.per_frame is not None:
-            write_joint_frames(stack.enter_context(atomic_path(args.per_frame)), posterior, gaze.frames, times)
-        write_joint_netcdf(out_tmp, posterior)
+            write_joint_frames(args.per_frame, posterior, gaze.frames, times)
+        write_joint_netcdf(args.out, posterior)
     if not args.quiet:
         print(_summary(posterior, data, [args.out] + ([args.per_frame] if args.per_frame else [])))
     if not posterior.succeeded:

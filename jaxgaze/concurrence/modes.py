@@ -92,7 +92,6 @@ from jaxgaze._checks import bucket_size
 from jaxgaze._batching import (
     lapack_eigh_cost,
     lapack_guard_applies,
-    lapack_lu_cost,
     lapack_qr_cost,
     lapack_safe_batch,
     map_in_batches,
@@ -551,13 +550,34 @@ def _refine_and_laplace(rays, members, x0, prior_scale, max_steps):
     x = jnp.where(ok, sol.value, x0)
     rss = jnp.where(ok, solved_cost, start_cost)  # the residual sum of squares at x
     jac = jax.jacfwd(_member_residuals)(x, (rays, members)).reshape(-1, 3)
-    precision = jac.T @ jac + jnp.eye(3, dtype=x.dtype) / prior_scale**2
     mean_c2, dof = _noise_scale(rss, jnp.sum(members))
-    laplace = jnp.linalg.inv(precision)
+    laplace = _laplace_covariance(jac, prior_scale)
     # The data pin x down only where JᵀJ outweighs the prior's I/s²; tr Σ_L ≥ s²/2 means that
-    # along some direction the prior, not the rays, holds the location (unbounded).
-    bounded = jnp.trace(laplace) < 0.5 * prior_scale**2
+    # along some direction the prior, not the rays, holds the location (unbounded). A covariance
+    # that is not finite (a NaN or inf in the Jacobian) is no bound either.
+    bounded = jnp.all(jnp.isfinite(laplace)) & (jnp.trace(laplace) < 0.5 * prior_scale**2)
     return x, laplace * mean_c2, dof, bounded
+
+
+def _laplace_covariance(jac: Float[Array, "M 3"], prior_scale) -> Float[Array, "3 3"]:
+    """``Σ_L = (JᵀJ + I/s²)⁻¹`` as the Gram matrix ``R⁻¹R⁻ᵀ`` (Park et al. 2012, Sec. 3.3; module docstring, step 4).
+
+    ``R`` is the triangle of the QR of ``[J; I/s]``, so ``RᵀR = JᵀJ + I/s²`` without forming
+    ``JᵀJ``: its conditioning is the square root of the precision's, and ``R⁻¹R⁻ᵀ`` is symmetric
+    positive semi-definite in any arithmetic. Inverting ``JᵀJ + I/s²`` itself in float32 could give
+    negative variances in crowded frames (eigenvalues −0.67, 5e-9, 8e-9 m² with 1,000 people).
+    ``R⁻¹`` of the 3 × 3 triangle is written out (no LAPACK call).
+    """
+    stacked = jnp.concatenate([jac, jnp.eye(3, dtype=jac.dtype) / prior_scale])
+    r = jnp.linalg.qr(stacked, mode="r")
+    (a, b, c), (_, d, e), (_, _, f) = r[0], r[1], r[2]
+    zero = jnp.zeros_like(a)
+    inverse = jnp.stack([
+        jnp.stack([1.0 / a, -b / (a * d), (b * e - c * d) / (a * d * f)]),
+        jnp.stack([zero, 1.0 / d, -e / (d * f)]),
+        jnp.stack([zero, zero, 1.0 / f]),
+    ])
+    return inverse @ inverse.T
 
 
 def _region(rays: GazeRays, x: Float[Array, "3"]) -> tuple[Array, Array]:
@@ -968,6 +988,10 @@ def _prepare(rays, options):
         raise TypeError(f"expected jaxgaze.GazeRays, got {type(rays).__name__}")
     if not isinstance(options, ConcurrenceOptions):
         raise TypeError(f"options must be a jaxgaze.ConcurrenceOptions, got {type(options).__name__}")
+    if rays.num_rays > MAX_RAYS_PER_FRAME:
+        raise ValueError(
+            f"{rays.num_rays} people in one frame: the concurrence search handles at most {MAX_RAYS_PER_FRAME} "
+            f"(its memory grows with the square of the people, {_search_gib(rays.num_rays):.0f} GiB here)")
     dtype = rays.origins.dtype
     box = np.array([[-np.inf] * 3, [np.inf] * 3]) if options.bounds is None else np.asarray(options.bounds)
     floor = np.inf if options.floor_below_eyes is None else options.floor_below_eyes
@@ -980,6 +1004,69 @@ def _prepare(rays, options):
     return host(options.seed_depths), (host(box), host(floor)), static
 
 
+#: Rays whose eyes lie farther than this from the world origin (metres) are recentred before the search.
+RECENTRE_DISTANCE = 1024.0
+#: Farthest eye from the reference point (metres) float32 resolves to 1 mm (its grid is 2 mm from 2¹⁴ m on).
+FLOAT32_SCENE_RADIUS = 2.0**14
+
+
+def _recentred(rays: GazeRays, options: ConcurrenceOptions, reference=None):
+    """``(rays, options, reference)`` with the world origin moved to ``reference`` (docs/conventions.md).
+
+    Far from the world origin (UTM or ECEF coordinates: 5,000 km, where float32's grid is
+    0.5 m) the search's float32 sums cancel. When a real eye lies farther than
+    :data:`RECENTRE_DISTANCE`, ``reference`` is the mean of the real eyes rounded to whole
+    metres (float64, ``(3,)``), every origin and ``options.bounds`` have it subtracted
+    (exactly: a float32 coordinate minus a whole number of metres is a float32), and
+    :func:`_moved_back` adds it back to the locations; covariances do not change. Otherwise
+    ``reference`` is ``None`` and nothing changes. A given ``reference`` (a stream's, fixed by its
+    first frame) is used as it is. Float32 rays spread over more than
+    :data:`FLOAT32_SCENE_RADIUS` around the reference cannot be recentred: ``ValueError``.
+    """
+    if not isinstance(rays, GazeRays) or not _concrete(rays.origins, rays.mask):
+        return rays, options, None
+    mask = np.asarray(rays.mask, dtype=bool)
+    origins = np.asarray(rays.origins, dtype=np.float64)
+    if reference is None:
+        if not mask.any() or np.abs(origins[mask]).max() <= RECENTRE_DISTANCE:
+            return rays, options, None
+        reference = np.round(origins[mask].mean(axis=0))
+    local = np.where(mask[..., None], origins - reference, 0.0)
+    farthest = np.abs(local).max()
+    if jnp.finfo(rays.origins.dtype).bits < 64 and farthest > FLOAT32_SCENE_RADIUS:
+        raise ValueError(
+            f"the eyes spread {farthest / 1e3:.4g} km around their mean ({', '.join(f'{v:.0f}' for v in reference)}) m: "
+            f"float32 resolves positions only to 1 mm within {FLOAT32_SCENE_RADIUS / 1e3:.4g} km (split the recording, "
+            "or enable float64)")
+    rays = eqx.tree_at(lambda r: r.origins, rays, jax.device_put(local.astype(rays.origins.dtype)))
+    if options.bounds is not None:
+        options = dataclasses.replace(options, bounds=np.asarray(options.bounds) - reference)
+    return rays, options, reference
+
+
+def _concrete(*arrays) -> bool:
+    return not any(isinstance(a, jax.core.Tracer) for a in arrays)
+
+
+def _moved_back(found: Concurrences, reference) -> Concurrences:
+    """``found`` with ``reference`` (see :func:`_recentred`) added back to the valid locations, which are then
+    float64 host arrays, so that the offset does not round them (float32 has a 0.5 m grid at 5,000 km)."""
+    if reference is None:
+        return found
+    valid = np.asarray(found.valid)[..., None]
+    return found._replace(locations=np.where(valid, np.asarray(found.locations, np.float64) + reference, 0.0))
+
+
+#: Most rays (people) in one frame: the search holds several ``(seeds, rays)`` arrays, ``16 N × N``
+#: floats each, so its memory grows as ``N²`` (3,000 people took 6.1 GB and 275 s; 10,000 would need 46 GB).
+MAX_RAYS_PER_FRAME = 2048
+
+
+def _search_gib(n: int) -> float:
+    """Rough peak memory (GiB) of one frame's search with ``n`` rays: 46 GB measured at 10,000, as ``n²``."""
+    return 46e9 / 2**30 * (n / 10_000) ** 2
+
+
 #: Frames per compiled batch on XLA:CPU when the LAPACK bound allows more.
 MAX_FRAMES_PER_BATCH = 64
 
@@ -988,10 +1075,10 @@ def _lapack_cost_per_mode(n: int) -> int:
     """Largest LAPACK flop estimate that one mode adds to a batched call.
 
     The Levenberg–Marquardt step solves the damped ``(3n + 3) × 3`` least-squares
-    system by QR; the covariance takes an LU of a ``3 × 3`` and the region an
-    ``eigh`` of one.
+    system by QR, the covariance takes the QR of ``[J; I/s]`` (the same shape) and the
+    region an ``eigh`` of a ``3 × 3``.
     """
-    return max(lapack_qr_cost(3 * n + 3, 3), lapack_eigh_cost(3), lapack_lu_cost(3))
+    return max(lapack_qr_cost(3 * n + 3, 3), lapack_eigh_cost(3))
 
 
 def _batch_plan(n: int, k: int) -> tuple[int, int]:
@@ -1074,13 +1161,17 @@ def find_concurrences(
     Precision: float32 and float64 rays give the same modes and memberships and agree
     to within 10 µm on the locations (below the mean-shift stopping step of 0.1 mm;
     scenes within tens of metres of the origin) and 1e-5 relative on the covariances
-    and field values.
+    and field values. A scene farther than ``RECENTRE_DISTANCE`` (1 km) from the world
+    origin is searched around its mean eye and its locations come back in float64
+    (docs/conventions.md, "Far from the origin"): 5,000 km away it gives the same answer.
+    More than ``MAX_RAYS_PER_FRAME`` (2,048) rays in a frame is a ``ValueError``.
     """
     if isinstance(rays, GazeRays) and rays.batch_shape:
         raise ValueError(
             f"find_concurrences takes one frame; rays have batch shape {rays.batch_shape}. "
             "Use find_concurrences_over_frames for a recording."
         )
+    rays, options, reference = _recentred(rays, options)
     if _prepare(rays, options)[2]["max_modes"] == 0:
         check_units(rays)
         return _empty(rays, options)
@@ -1096,12 +1187,13 @@ def find_concurrences(
     # compile small programs for every new (N, K) pair.
     result = jax.device_get(_one_frame_jit(padded, depths, box, **static))
     keep = result.valid
-    return Concurrences(
+    found = Concurrences(
         **jax.device_put({
             name: (value[:n] if name in _PER_RAY else value[keep])
             for name, value in result._asdict().items()
         })
     )
+    return _moved_back(found, reference)
 
 
 _RAY_BUCKET = 8
@@ -1163,12 +1255,13 @@ def find_concurrences_over_frames(
     process computes a contiguous share of the batches and every process returns the
     whole result. The answer does not depend on the number of devices or processes
     (``docs/runtime.md``, "Many devices and many machines").
-    ``progress`` shows a bar of frames (lanes) done on stderr. What is not a concurrence, and
-    the unit checks: as for :func:`find_concurrences`.
+    ``progress`` shows a bar of frames (lanes) done on stderr. What is not a concurrence, the
+    unit checks and scenes far from the world origin: as for :func:`find_concurrences`.
     """
     if not isinstance(rays, GazeRays) or len(rays.batch_shape) != 1:
         shape = rays.batch_shape if isinstance(rays, GazeRays) else None
         raise ValueError(f"find_concurrences_over_frames needs rays of shape (T, N, 3); batch shape is {shape}")
+    rays, options, reference = _recentred(rays, options)
     depths, box, static = _prepare(rays, options)
     check_units(rays)
     total = rays.batch_shape[0]
@@ -1190,8 +1283,10 @@ def find_concurrences_over_frames(
     if warm_start is None:
         warm_start = total >= WARM_START_MIN_FRAMES
     if not warm_start or total < 2 * LANE_FRAMES:
-        return map_in_batches(cold, rays, batch, pad=_masked_padding, progress=progress, desc="concurrences")
-    return _warm_started(rays, cold, depths, box, static, batch, progress)
+        found = map_in_batches(cold, rays, batch, pad=_masked_padding, progress=progress, desc="concurrences")
+    else:
+        found = _warm_started(rays, cold, depths, box, static, batch, progress)
+    return _moved_back(found, reference)
 
 
 def _cold_frames(part: GazeRays, *, depths, box, static) -> Concurrences:
@@ -1352,7 +1447,8 @@ def track_concurrences(concurrences: Concurrences, *, max_distance: float = 0.5,
     A ``lax.scan`` over frames. In each frame the modes, strongest first, take
     the nearest live track within ``max_distance`` metres that is not yet taken;
     a mode with none starts a new track (birth). A track not seen for more than
-    ``max_gap`` frames ends (death) and is never revived.
+    ``max_gap`` frames ends (death) and is never revived. A recording with no mode
+    slot (``K = 0``: one person per frame, or fewer than ``min_rays``) has no track.
     """
     if concurrences.locations.ndim != 3:
         raise ValueError("track_concurrences needs the padded (T, K) result of find_concurrences_over_frames")
@@ -1403,6 +1499,8 @@ def _track_frame(carry: TrackerState, inputs, *, max_distance: float, max_gap: i
     track_id, track_loc, unseen, next_id = carry
     locations, valid, values = inputs
     k = locations.shape[0]
+    if k == 0:  # no mode can be found (fewer rays than min_rays, e.g. one person): nothing to link
+        return carry, jnp.zeros(0, jnp.int32)
     big = jnp.asarray(jnp.inf, locations.dtype)
     order = jnp.argsort(jnp.where(valid, -values, jnp.inf))
     live = (track_id >= 0) & (unseen <= max_gap)

@@ -31,7 +31,10 @@ from jaxgaze.concurrence.modes import (
     Concurrences,
     TrackerState,
     _concurrences_one_frame,
+    _empty,
+    _moved_back,
     _prepare,
+    _recentred,
     _track_frame,
     _tracker_init,
     _warm_frame,
@@ -48,6 +51,10 @@ class StreamState(NamedTuple):
     valid: Bool[Array, " K"]
     frame: Int[Array, ""]  # frames seen so far
     tracker: TrackerState
+    # The world point the locations above are measured from: None before the first frame, zeros when
+    # the scene lies near the world origin, else the first frame's mean eye (float64, host; see
+    # docs/conventions.md, "Far from the origin").
+    reference: np.ndarray | None = None
 
 
 class StreamFrame(NamedTuple):
@@ -98,7 +105,9 @@ class ConcurrenceStream:
 
     ``state = stream.init()``, then ``found, state = stream.update(state, rays_t)`` for each
     frame's :class:`~jaxgaze.GazeRays` (``(N, 3)``, ``N ≤ num_people``, world frame, metres).
-    ``found`` is a :class:`StreamFrame`. The answers agree with
+    ``found`` is a :class:`StreamFrame`. A stream for fewer people than ``options.min_rays``
+    (e.g. one wearer) has ``K = 0``: every frame has no concurrence (mutual gaze is still
+    reported). The answers agree with
     :func:`~jaxgaze.concurrence.find_concurrences_over_frames` followed by
     :func:`~jaxgaze.concurrence.track_concurrences` on the same recording (the same count in
     ≥ 99 % of frames; locations within 1 cm where the counts agree).
@@ -111,8 +120,8 @@ class ConcurrenceStream:
     dtype: type = jnp.float32
 
     def __post_init__(self):
-        if isinstance(self.num_people, bool) or int(self.num_people) != self.num_people or self.num_people < 2:
-            raise ValueError(f"num_people must be an integer ≥ 2, got {self.num_people!r}")
+        if isinstance(self.num_people, bool) or int(self.num_people) != self.num_people or self.num_people < 1:
+            raise ValueError(f"num_people must be an integer ≥ 1, got {self.num_people!r}")
         object.__setattr__(self, "num_people", int(self.num_people))
         if not isinstance(self.options, ConcurrenceOptions):
             raise TypeError(f"options must be a jaxgaze.ConcurrenceOptions, got {type(self.options).__name__}")
@@ -121,8 +130,6 @@ class ConcurrenceStream:
         object.__setattr__(self, "dtype", jnp.dtype(self.dtype).type)
         empty = self._padded(GazeRays(np.zeros((1, 3)), np.array([[1.0, 0.0, 0.0]]), np.ones(1)))
         depths, region, static = _prepare(empty, self.options)
-        if static["max_modes"] == 0:
-            raise ValueError(f"no concurrence fits: num_people={self.num_people} < min_rays={self.options.min_rays}")
         object.__setattr__(self, "_program", (depths, region, static))
 
     @property
@@ -161,5 +168,23 @@ class ConcurrenceStream:
                              f"{self.num_people}")
         check_units(rays)
         depths, region, static = self._program
-        return _stream_step_jit(state, self._padded(rays), depths, region, **static,
-                                max_distance=float(self.max_distance), max_gap=int(self.max_gap))
+        # Far from the world origin the frames are measured from the first frame's mean eye (whole metres).
+        if state.reference is None:  # the first frame decides
+            rays, options, reference = _recentred(rays, self.options)
+        elif state.reference.any():
+            rays, options, reference = _recentred(rays, self.options, state.reference)
+        else:
+            options, reference = self.options, None
+        if reference is not None and options.bounds is not None:
+            region = (jax.device_put(np.asarray(options.bounds, np.asarray(region[0]).dtype)), region[1])
+        kept = reference if reference is not None else (
+            np.zeros(3) if state.reference is not None or np.asarray(rays.mask).any() else None)
+        if static["max_modes"] == 0:  # fewer people than min_rays (one person): no concurrence, nothing to track
+            found = _empty(self._padded(rays), self.options)
+            return (StreamFrame(found, jnp.zeros(0, jnp.int32), jnp.asarray(False)),
+                    state._replace(frame=state.frame + 1, reference=kept))
+        found, new_state = _stream_step_jit(state._replace(reference=None), self._padded(rays), depths, region,
+                                            **static, max_distance=float(self.max_distance),
+                                            max_gap=int(self.max_gap))
+        found = found._replace(concurrences=_moved_back(found.concurrences, reference))
+        return found, new_state._replace(reference=kept)

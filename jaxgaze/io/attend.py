@@ -7,10 +7,9 @@ angles are radians. Missing values are empty cells.
 
 from __future__ import annotations
 
-import csv
 import math
 
-from jaxgaze.io.text import atomic_path
+from jaxgaze.io.text import atomic_path, csv_writer
 
 __all__ = ["ATTEND_COLUMNS", "write_attend_csv"]
 
@@ -31,7 +30,7 @@ def write_attend_csv(path, windows, fps=None) -> int:
     :class:`~jaxgaze.vision.attend.AttentionWindows` (atomically); ``start_time`` is
     ``start_frame / fps`` (empty without ``fps``). Returns the number of rows."""
     with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
+        writer = csv_writer(handle)
         writer.writerow(ATTEND_COLUMNS)
         for i in range(len(windows.start_frame)):
             start = int(windows.start_frame[i])

@@ -4,7 +4,6 @@
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 from typing import Optional
@@ -13,14 +12,16 @@ import numpy as np
 
 from jaxgaze.bias.adapt import BIAS_FRAME_COLUMNS, BiasAdaptation
 from jaxgaze.io.sampler import sampler_record
-from jaxgaze.io.text import atomic_path
+from jaxgaze.io.text import atomic_path, csv_writer
 
 __all__ = ["BIAS_JSON_FORMAT", "BIAS_UNITS", "bias_record", "write_bias_report"]
 
 #: The report in words (the ``jaxgaze bias`` help shows it).
 BIAS_JSON_FORMAT = """\
 BIAS.json holds method, bias and bias_deg ([yaw, tilt]; radians, degrees),
-covariance (radians^2) and std_deg (null when unknown), partner, fps, the
+covariance (radians^2) and std_deg (null when unknown), "input" (the files: gaze,
+speech, targets, the file the targets came from (null for one --targets point), and
+targets_from, what in it), partner, fps, the
 selection (num_candidates, num_selected, selected_frames, inliers), for bayes
 "posterior": the responsibilities, whether the sampler mixed (result:
 successful or not_mixed; r_hat_max, the largest split r-hat, ess_bulk_min,
@@ -125,7 +126,7 @@ def write_bias_report(path, record: dict, per_frame_path=None) -> None:
     table = record["frames"]
     with atomic_path(per_frame_path) as frames_tmp:
         with open(frames_tmp, "w", encoding="utf-8", newline="") as handle:
-            writer = csv.writer(handle, lineterminator="\n")
+            writer = csv_writer(handle)
             writer.writerow(BIAS_FRAME_COLUMNS)
             for row in zip(*(table[c] for c in BIAS_FRAME_COLUMNS)):
                 writer.writerow([int(x) if isinstance(x, bool) else x for x in row])

@@ -20,7 +20,7 @@ import numpy as np
 from jaxgaze.calibration.cone_fit import ConeCalibration
 from jaxgaze.io.poses import WearerPoses
 from jaxgaze.io.rays import RayRecording, stack_rays
-from jaxgaze.io.sampler import sampler_record
+from jaxgaze.io.sampler import finite_or_none, sampler_record
 from jaxgaze.io.text import InputFileError, atomic_path, read_text
 from jaxgaze.results import RESULTS
 
@@ -113,57 +113,76 @@ def read_calibration_json(path) -> WearerCalibration:
     return WearerCalibration(wearer.strip(), cone, path)
 
 
+def _cone_record(cone: ConeCalibration) -> dict:
+    direction = np.asarray(cone.direction, dtype=np.float64)
+    return {"eye_center": [float(x) for x in np.asarray(cone.eye_center, dtype=np.float64)],
+            "direction": [float(x) for x in direction / np.linalg.norm(direction)],
+            "bandwidth": float(cone.bandwidth), "alpha": finite_or_none(cone.alpha), "xi": finite_or_none(cone.xi)}
+
+
+def _write_json(path, record: dict) -> None:
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as handle:
+        handle.write(json.dumps(record, indent=2, allow_nan=False) + "\n")
+
+
 def write_calibration_json(path, wearer: str, cone: ConeCalibration, *, posterior=None, posterior_path=None,
-                           num_warmup: Optional[int] = None) -> dict:
+                           num_warmup: Optional[int] = None, choice=None) -> dict:
     """Write a successful :class:`ConeCalibration` of ``wearer`` as a calibration JSON; returns the record.
 
-    Keys: :data:`CALIBRATION_KEYS`, ``units``, ``alpha``, ``xi``, ``num_points`` and
-    ``num_inliers`` (from ``cone.inliers``) and ``method``. With ``posterior`` (a
-    :class:`~jaxgaze.calibration.posterior.CalibrationPosterior`) its InferenceData is
-    written to ``posterior_path`` (NetCDF) and a summary goes under ``"posterior"``
-    (its ``result`` name, means, the mixing diagnostics — largest split r-hat, smallest
-    bulk and tail ESS, divergences, acceptance — and under ``"parameters"`` each
-    parameter's mean, sd, 90% HDI, ESS and r-hat; ``null`` where undefined; draws,
-    ``num_warmup``). A posterior that failed is written all the same: the caller
-    reports its ``result``.
+    Keys: :data:`CALIBRATION_KEYS`, ``units``, ``alpha``, ``xi`` (``null`` when eq. 2 was not
+    solved), ``num_points`` and ``num_inliers`` (from ``cone.inliers``) and ``method``. With
+    ``choice`` (a :class:`~jaxgaze.calibration.posterior.CalibrationChoice`) its cone is written
+    instead of ``cone``, ``method`` is its method, and ``"point_estimate"`` holds ``cone`` (the
+    RANSAC + eq. 2 estimate), whether it ``disagrees`` with the posterior, its ``region_level``
+    and its ``distance_to_posterior_mean`` (m). With ``posterior`` (a
+    :class:`~jaxgaze.calibration.posterior.CalibrationPosterior`) a summary goes under
+    ``"posterior"`` (its ``result`` name, means, the mixing diagnostics — largest split r-hat,
+    smallest bulk and tail ESS, divergences, acceptance — and under ``"parameters"`` each
+    parameter's mean, sd, 90% HDI, ESS and r-hat; ``null`` where undefined; draws per chain,
+    ``num_warmup``) and its InferenceData is written to ``posterior_path`` (NetCDF; with
+    ``posterior_path=None`` none is written and ``"file"`` is ``null``). A posterior that failed
+    is written all the same: the caller reports its ``result``.
     Both files are written atomically, and the NetCDF only together with the JSON.
     A NetCDF back-end failure is an ``OSError`` naming ``posterior_path``.
     """
-    direction = np.asarray(cone.direction, dtype=np.float64)
+    point_estimate = cone
+    if choice is not None:
+        cone = choice.cone
     inliers = np.asarray(cone.inliers, dtype=bool)
     record = {
         "wearer": wearer,
         "frame": "camera",
         "units": _UNITS,
-        "eye_center": [float(x) for x in np.asarray(cone.eye_center, dtype=np.float64)],
-        "direction": [float(x) for x in direction / np.linalg.norm(direction)],
-        "bandwidth": float(cone.bandwidth),
-        "alpha": float(cone.alpha),
-        "xi": float(cone.xi),
+        **_cone_record(cone),
         "num_points": int(inliers.size),
         "num_inliers": int(inliers.sum()),
-        "method": "ransac+cone",
+        "method": "ransac+cone" if choice is None else choice.method,
     }
+    if choice is not None:
+        record["point_estimate"] = {"method": "ransac+cone", **_cone_record(point_estimate),
+                                    "disagrees": bool(choice.disagrees), "region_level": float(choice.region_level),
+                                    "distance_to_posterior_mean": float(choice.distance)}
     if posterior is None:
-        with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as handle:
-            handle.write(json.dumps(record, indent=2, allow_nan=False) + "\n")
+        _write_json(path, record)
         return record
     record["posterior"] = {
         "eye_center_mean": [float(x) for x in posterior.eye_center],
         "direction_mean": [float(x) for x in posterior.direction],
         "bandwidth_mean": float(posterior.bandwidth),
         **sampler_record(posterior.result, posterior.diagnostics, posterior.summary),
-        "num_samples": int(posterior.idata.posterior.sizes["draw"]),
+        "num_samples": len(posterior.samples["bandwidth"]) // int(posterior.diagnostics["chains"]),
         "num_warmup": None if num_warmup is None else int(num_warmup),
-        "file": os.path.basename(os.fspath(posterior_path)),
+        "file": None if posterior_path is None else os.path.basename(os.fspath(posterior_path)),
     }
+    if posterior_path is None:
+        _write_json(path, record)
+        return record
     with atomic_path(posterior_path) as netcdf:
         try:
             posterior.idata.to_netcdf(netcdf)
         except (ValueError, RuntimeError) as error:  # netCDF back-end errors
             raise OSError(0, str(error), os.fspath(posterior_path)) from None
-        with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as handle:
-            handle.write(json.dumps(record, indent=2, allow_nan=False) + "\n")
+        _write_json(path, record)
     return record
 
 

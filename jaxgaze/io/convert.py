@@ -7,7 +7,7 @@ of each are in ``docs/conventions.md`` ("Other gaze tools") and in its module's 
 from __future__ import annotations
 
 import os
-from typing import Optional
+from typing import Optional, Sequence
 
 from jaxgaze.io.aria import read_aria
 from jaxgaze.io.gaze360 import read_gaze360
@@ -20,7 +20,7 @@ from jaxgaze.io.text import InputFileError, read_text
 from jaxgaze.io.xgaze import read_xgaze
 from jaxgaze.poses import CameraPoses
 
-__all__ = ["GAZE_TOOLS", "read_gaze_tool"]
+__all__ = ["GAZE_TOOLS", "WEARER_TOOLS", "read_gaze_tool"]
 
 #: ``--from`` name → what it reads.
 GAZE_TOOLS = {
@@ -41,27 +41,36 @@ def _is_neon(path) -> bool:
     return "azimuth [deg]" in header.lower()
 
 
+#: The tools whose files are one wearer each, named by ``persons`` (the others name people in their rows).
+WEARER_TOOLS = ("pupil", "aria")
+
+
 def read_gaze_tool(tool: str, paths, *, camera: Optional[CameraPoses] = None,
-                   fps: Optional[float] = None) -> RayRecording:
+                   fps: Optional[float] = None, persons: Optional[Sequence[str]] = None) -> RayRecording:
     """The world-frame rays of one tool's output files (``paths``: one or several, as the tool's reader takes).
 
     ``camera`` places a camera-based tool's camera (or a wearer's scene camera) in the world; ``fps`` is the
     frame rate of the time grid of the tools that have timestamps but no frames (Aria, Neon). A ``pupil`` file
-    is read as Neon's export when its header names ``azimuth [deg]``.
+    is read as Neon's export when its header names ``azimuth [deg]``. ``persons``: one name per file of a
+    wearer tool (:data:`WEARER_TOOLS`; default :func:`~jaxgaze.io.pupil.wearer_names`).
     """
     if tool not in GAZE_TOOLS:
         raise ValueError(f"unknown gaze tool {tool!r}: choose from {', '.join(GAZE_TOOLS)}")
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     if not paths:
         raise ValueError("no input files")
+    if persons is not None and tool not in WEARER_TOOLS:
+        raise ValueError(f"persons= names the wearers of {' and '.join(WEARER_TOOLS)} files; {tool} files name "
+                         "their people in their rows")
     timed = {} if fps is None else {"fps": fps}
     if tool == "pupil":
         neon = [_is_neon(path) for path in paths]
         if any(neon) and not all(neon):
             raise InputFileError("Pupil Core and Neon exports mixed: convert them separately", paths[neon.index(False)])
-        return read_neon(paths, camera=camera, **timed) if neon[0] else read_pupil(paths, camera=camera)
+        reader = read_neon if neon[0] else read_pupil
+        return reader(paths, camera=camera, persons=persons, **(timed if neon[0] else {}))
     if tool == "aria":
-        return read_aria(paths, camera=camera, **timed)
+        return read_aria(paths, camera=camera, persons=persons, **timed)
     readers = {"gaze360": read_gaze360, "l2cs": read_l2cs, "xgaze": read_xgaze, "mediapipe": read_mediapipe,
                "openface": read_openface_rays}
     return readers[tool](paths if len(paths) > 1 else paths[0], camera=camera)

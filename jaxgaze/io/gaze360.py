@@ -88,8 +88,9 @@ _UP = np.array([0.0, 0.0, 1.0])
 
 
 def gaze360_eye_frame(eyes_camera) -> np.ndarray:
-    """Gaze360's eye coordinate system at each eye centre: ``(M, 3, 3)`` whose columns are
-    ``E_x, E_y, E_z`` in our camera frame (``v_camera = R @ g_E``).
+    """Gaze360's eye coordinate system at each eye centre ``eyes_camera`` ``(M, 3)`` (our camera axes: +x
+    the optical axis, +y left, +z up; metres): ``(M, 3, 3)`` whose columns are ``E_x, E_y, E_z`` in our
+    camera frame (``v_camera = R @ g_E``).
 
     ``E_z = e/‖e‖`` (away from the camera), ``E_y`` = our +z minus its ``E_z`` part, normalised,
     ``E_x = E_y × E_z`` (the camera's left). Eyes must be in front of the camera (``e_x > 0``).
@@ -103,8 +104,8 @@ def gaze360_eye_frame(eyes_camera) -> np.ndarray:
 
 
 def gaze360_directions(yaw, pitch, eyes_camera) -> np.ndarray:
-    """Gaze360 angles (radians, eye frame) → unit gaze directions ``(M, 3)`` in our camera frame:
-    ``spherical2cartesial`` (``g_E = (cos p sin y, sin p, −cos p cos y)``), then :func:`gaze360_eye_frame`."""
+    """Gaze360 angles (radians, eye frame) and eye centres ``eyes_camera`` ``(M, 3)`` (our camera axes, as
+    :func:`gaze360_eye_frame`) → unit gaze directions ``(M, 3)`` in our camera frame: ``spherical2cartesial`` (``g_E = (cos p sin y, sin p, −cos p cos y)``), then :func:`gaze360_eye_frame`."""
     yaw = np.asarray(yaw, dtype=np.float64).reshape(-1)
     pitch = np.asarray(pitch, dtype=np.float64).reshape(-1)
     g = np.stack([np.cos(pitch) * np.sin(yaw), np.sin(pitch), -np.cos(pitch) * np.cos(yaw)], axis=-1)
@@ -238,8 +239,11 @@ def gaze360_to_rays(yaw, pitch, var, eyes_camera, *, frames: Optional[Sequence[i
     """Gaze360 outputs as arrays → a world :class:`~jaxgaze.io.rays.RayRecording` (Kellnhofer et al. 2019).
 
     ``yaw``, ``pitch``, ``var`` ``(M,)`` as ``GazeLSTM`` returns them (radians, eye frame);
-    ``eyes_camera`` ``(M, 3)`` the mid-eye points in **our** camera frame (+x forward, +y left,
-    +z up), metres; ``frames`` (default ``0 … M−1``) and ``persons`` (default ``"0"``) per ray;
+    ``eyes_camera`` ``(M, 3)`` the mid-eye points in **our** camera axes (origin the camera centre,
+    +x along the optical axis, +y left, +z up), metres. These are *not* the OpenCV axes (x right,
+    y down, z forward) of Gaze360's ``person_eyes3d`` and of the dump CSV: turn those into ours with
+    ``eyes_opencv @ R_OURS_FROM_OPENCV.T`` (:data:`jaxgaze.geometry.R_OURS_FROM_OPENCV`), as
+    :func:`read_gaze360` does. ``frames`` (default ``0 … M−1``) and ``persons`` (default ``"0"``) per ray;
     ``camera`` places the camera in a world (default: the world is the camera frame). Directions
     by :func:`gaze360_directions`, bandwidth by :func:`bandwidth_from_gaze360_var` (a warning
     names the rays clipped). Bad values raise :class:`InputFileError` naming the row.
@@ -335,7 +339,7 @@ def recording_rows(recording: RayRecording, camera: Optional[CameraPoses]):
     t, n = np.nonzero(mask)
     frames = np.asarray(recording.frame_ids, dtype=np.int64)[t]
     persons = [recording.persons[i][j] for i, j in zip(t, n)]
-    eyes, directions = world_rays_to_camera(frames, np.asarray(recording.rays.origins, dtype=np.float64)[t, n],
+    eyes, directions = world_rays_to_camera(frames, recording.world_origins()[t, n],
                                             np.asarray(recording.rays.directions, dtype=np.float64)[t, n], camera)
     behind = ~(eyes[:, 0] > 0)
     if behind.any():

@@ -22,9 +22,10 @@ import numpy as np
 from jaxgaze.io.rays import RayRecording, stack_rays
 from jaxgaze.io.text import InputFileError
 from jaxgaze.poses import CameraPoses, as_camera_poses
-from jaxgaze.rays import check_bandwidth
+from jaxgaze.rays import check_bandwidth, check_distance
 
 __all__ = [
+    "check_camera_distances",
     "MissingExtraError",
     "require_extra",
     "bandwidth_from_mean_angular_error",
@@ -117,3 +118,12 @@ def rays_from_camera(frames: Sequence[int], persons: Sequence[str], eyes_camera,
     path = "<arrays>" if path is None else path
     origins, directions = camera_rays_to_world(frames, eyes_camera, directions_camera, camera, path=path)
     return stack_rays(list(frames), list(persons), origins, directions, bandwidth, path=path)
+
+
+def check_camera_distances(recording) -> None:
+    """A :class:`~jaxgaze.rays.UnitWarning` when an eye of a camera-frame recording lies more than 100 m from
+    the camera (millimetres?): with one face per frame, the spread rule of ``check_units`` cannot see it.
+    The message names the frame by its row, as ``check_units`` does."""
+    distance = np.linalg.norm(recording.world_origins(), axis=-1)
+    check_distance(np.where(recording.rays.mask, distance, 0.0).max(axis=1),
+                   "an eye's distance from the camera", np.arange(len(recording.frame_ids)))

@@ -10,7 +10,6 @@ The posterior is read by attribute only (``people``, ``candidates``, ``membershi
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 import re
@@ -22,7 +21,8 @@ import numpy as np
 from jaxgaze.bias.speech import SpeechSegments, speaking_at
 from jaxgaze.io.gaze import GazeFileError, GazeTrack, read_gaze
 from jaxgaze.io.speech import SpeechFileError, read_rttm, read_segments_csv
-from jaxgaze.io.text import atomic_path, format_float, read_text
+from jaxgaze.io.text import atomic_path, csv_writer, format_float, read_text
+from jaxgaze.nuts import set_units, split_chains
 
 __all__ = ["JOINT_FRAME_COLUMNS", "JOINT_FRAMES_FORMAT", "JOINT_INPUTS_FORMAT", "JointGaze", "read_joint_gaze",
            "read_speech", "speaking_by_person", "joint_frame_columns", "write_joint_frames", "write_joint_netcdf"]
@@ -256,7 +256,7 @@ def write_joint_frames(path, posterior, frames, times) -> int:
     partner = np.argmax(others, axis=-1)
     p_partner = np.take_along_axis(others, partner[..., None], axis=-1)[..., 0]
     with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
+        writer = csv_writer(handle)
         writer.writerow(columns)
         for t in range(T):
             frame = int(frames[t])
@@ -273,12 +273,23 @@ def write_joint_frames(path, posterior, frames, times) -> int:
     return T * P
 
 
+#: Units of the joint model's variables, written into their netCDF attributes ("1": no unit).
+NETCDF_UNITS = {"bias": "rad", "cone_width": "rad", "alpha_person": "1", "alpha_object": "1", "speaker_effect": "1",
+                "stay": "1", "concurrence_offset": "1", "concurrence_drift": "1", "concurrence_locations": "m",
+                "eye_offset": "m", "calibration_outlier_share": "1", "gaze_angles": "rad", "present": "1",
+                "speaking": "1", "diverging": "1", "acceptance_rate": "1", "n_steps": "1", "lp": "1"}
+
+
 def write_joint_netcdf(path, posterior) -> str:
     """Write ``posterior.idata`` (an arviz ``InferenceData``) to ``path`` as netCDF, atomically; returns ``path``.
 
-    Read it back with ``arviz.from_netcdf(path)``.
+    Read it back with ``arviz.from_netcdf(path)``. Each sampler chain is written as its two halves
+    (:func:`jaxgaze.nuts.split_chains`), so that arviz's ``az.summary`` gives the split r-hat and ESS
+    reported, and every variable has its ``units`` attribute (:data:`NETCDF_UNITS`).
     """
-    idata = posterior.idata
+    idata = split_chains(posterior.idata)
+    if hasattr(idata, "groups"):
+        set_units(idata, NETCDF_UNITS)
     with atomic_path(path) as tmp:
         idata.to_netcdf(tmp)
     return str(path)

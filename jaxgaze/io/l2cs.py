@@ -101,7 +101,10 @@ def l2cs_to_rays(pitch, yaw, eyes_camera, *, order: Sequence[str] = ("pitch", "y
 
     ``pitch``, ``yaw`` ``(M,)``: the ``GazeResultContainer`` fields (radians); ``order`` says which
     is horizontal (first, default ``pitch``, see the module docstring); ``eyes_camera`` ``(M, 3)``
-    the mid-eye points in **our** camera frame (+x forward, +y left, +z up), metres; ``frames``
+    the mid-eye points in **our** camera axes (origin the camera centre, +x along the optical axis,
+    +y left, +z up), metres, not the OpenCV axes (x right, y down, z forward) of the dump CSV's
+    ``eye_*`` columns: turn those into ours with ``eyes_opencv @ R_OURS_FROM_OPENCV.T``
+    (:data:`jaxgaze.geometry.R_OURS_FROM_OPENCV`), as :func:`read_l2cs` does; ``frames``
     (default ``0 … M−1``) and ``persons`` (default ``"0"``) per ray; ``camera`` places the camera in
     a world; ``bandwidth`` (radians) for every ray. Bad values raise
     :class:`~jaxgaze.io.text.InputFileError` naming the row.

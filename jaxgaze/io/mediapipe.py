@@ -294,7 +294,7 @@ def write_mediapipe(path, recording: RayRecording, *, camera: Optional[CameraPos
     mask = np.asarray(recording.rays.mask)
     t, n = np.nonzero(mask)
     frames = np.asarray(recording.frame_ids, dtype=np.int64)[t]
-    eyes, gaze = world_rays_to_camera(frames, np.asarray(recording.rays.origins, float)[t, n],
+    eyes, gaze = world_rays_to_camera(frames, recording.world_origins()[t, n],
                                       np.asarray(recording.rays.directions, float)[t, n], camera)
     eyes = eyes @ R_OURS_FROM_MEDIAPIPE * 100.0
     eyes[:, 2] /= _depth_scale(vertical_fov_deg)

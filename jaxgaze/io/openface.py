@@ -45,7 +45,8 @@ from jaxgaze.geometry import direction_to_yaw_pitch, unit
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
 from jaxgaze.io.gaze_tools import bandwidth_from_mean_angular_error, rays_from_camera, world_rays_to_camera
 from jaxgaze.io.rays import RayRecording
-from jaxgaze.io.text import InputFileError, first_few, format_float, parse_number, read_csv_table, write_csv_rows
+from jaxgaze.io.text import (InputFileError, first_few, format_float, parse_integer, parse_number, read_csv_table,
+                             write_csv_rows)
 from jaxgaze.poses import CameraPoses
 
 __all__ = [
@@ -218,6 +219,13 @@ def _parse_columns(table, columns) -> tuple[np.ndarray, np.ndarray]:
     return where, values
 
 
+def _exact_ids(table, column: str) -> np.ndarray:
+    """``(M,)`` int64 of an integer column (frame, face_id) of every row, parsed exactly (not through float64,
+    which rounds ids above 2^53); the float checks of :func:`_parse_columns` came first."""
+    return np.array([parse_integer(row.cell(column), f"column '{column}'", table.path, row.line, OpenFaceFileError)
+                     for row in table.rows], dtype=np.int64)
+
+
 def _fail_at(mask, message, path, where) -> None:
     """Raise :class:`OpenFaceFileError` ``message(i)`` at the line of the first row ``i`` where ``mask`` holds."""
     bad = np.nonzero(mask)[0]
@@ -288,7 +296,7 @@ def read_openface(path, *, min_confidence: float = 0.75, face_id: Optional[int] 
     def fail_at(mask, message):
         _fail_at(mask, message, path, where)
 
-    faces = col["face_id"].astype(np.int64) if "face_id" in col else np.zeros(len(where), dtype=np.int64)
+    faces = _exact_ids(table, "face_id") if "face_id" in col else np.zeros(len(where), dtype=np.int64)
     present = sorted(set(faces.tolist()))
     if face_id is None:
         if len(present) > 1:
@@ -303,7 +311,7 @@ def read_openface(path, *, min_confidence: float = 0.75, face_id: Optional[int] 
     mine = faces == int(face_id)
     where, values = where[mine], values[mine]
     col = {c: values[:, j] for j, c in enumerate(columns)}
-    frames = col["frame"].astype(np.int64)
+    frames = _exact_ids(table, "frame")[mine]
 
     first: dict[int, int] = {}
     for frame, line in zip(frames.tolist(), where.tolist()):
@@ -437,8 +445,8 @@ def _read_faces(path, min_confidence: float) -> _Faces:
     columns = [c for c in _BOOKKEEPING if table.has(c)] + list(gaze) + list(position)
     where, values = _parse_columns(table, columns)
     col = {c: values[:, j] for j, c in enumerate(columns)}
-    frames = col["frame"].astype(np.int64)
-    faces = col["face_id"].astype(np.int64) if "face_id" in col else np.zeros(len(where), dtype=np.int64)
+    frames = _exact_ids(table, "frame")
+    faces = _exact_ids(table, "face_id") if "face_id" in col else np.zeros(len(where), dtype=np.int64)
 
     first: dict[tuple[int, int], int] = {}
     for key, line in zip(zip(frames.tolist(), faces.tolist()), where.tolist()):
@@ -638,6 +646,6 @@ def write_openface_rays(path, recording: RayRecording, *, camera: Optional[Camer
     frames = np.asarray(recording.frame_ids, dtype=np.int64)[t]
     names = [recording.persons[a][b] for a, b in zip(t, n)]
     face_id = {name: k for k, name in enumerate(dict.fromkeys(names))}
-    eyes, gaze = world_rays_to_camera(frames, np.asarray(recording.rays.origins, float)[t, n],
+    eyes, gaze = world_rays_to_camera(frames, recording.world_origins()[t, n],
                                       np.asarray(recording.rays.directions, float)[t, n], camera)
     return write_openface_faces(path, frames, [face_id[name] for name in names], eyes, gaze, fps=fps)

@@ -10,7 +10,6 @@ whose message starts with ``path, line N:``.
 
 from __future__ import annotations
 
-import csv
 import io
 import math
 import os
@@ -20,7 +19,7 @@ from typing import NamedTuple, Optional
 import numpy as np
 
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.text import InputFileError, atomic_path, parse_number, read_csv_table, read_lines
+from jaxgaze.io.text import InputFileError, atomic_path, csv_writer, parse_integer, parse_number, read_csv_table, read_lines
 from jaxgaze.poses import CameraPoses, as_camera_poses, camera_poses, matrices_to_quaternions, quaternions_to_matrices
 
 __all__ = [
@@ -64,10 +63,7 @@ def _number(text: str, what: str, path, line: int) -> float:
 
 
 def _integer(text: str, what: str, path, line: int) -> int:
-    value = _number(text, what, path, line)
-    if not value.is_integer():
-        raise PoseFileError(f"{what} must be an integer, got {text!r}", path, line)
-    return int(value)
+    return parse_integer(text, what, path, line, PoseFileError)
 
 
 def check_quaternion(q, path, line: int) -> None:
@@ -353,7 +349,7 @@ def write_pose_csv(path, poses: CameraPoses) -> None:
     q = matrices_to_quaternions(poses.R_camera_from_world)
     columns = list(POSE_CSV_COLUMNS) + (["timestamp"] if poses.timestamps is not None else [])
     with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
+        writer = csv_writer(handle)
         writer.writerow(columns)
         for k in range(poses.num_frames):
             row = [int(poses.frame_ids[k]), *(repr(float(x)) for x in q[k]), *(repr(float(x)) for x in poses.centers[k])]
@@ -466,6 +462,6 @@ def write_camera_poses_csv(path, poses: dict) -> None:
                                                  *(repr(float(x)) for x in p.centers[t])]))
     rows.sort(key=lambda r: r[:2])
     with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
+        writer = csv_writer(handle)
         writer.writerow(CAMERA_POSE_COLUMNS)
         writer.writerows(r[2] for r in rows)

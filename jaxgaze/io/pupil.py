@@ -40,7 +40,8 @@ folder needs ``pupil-labs-neon-recording`` (``pip install 'jaxgaze[neon]'``,
 :func:`read_neon_recording`); the CSV path does not.
 
 **Several wearers** are several files: the person names come from ``persons`` or, by default, from
-each file's name (its parent folder's when the file keeps the tool's own name); each file's rays
+each file's name (its recording folder's when the file keeps the tool's own name: ``ann`` for
+Pupil Player's ``ann/exports/000/gaze_positions.csv``; :func:`wearer_names`); each file's rays
 are in its own scene camera frame, so several files need ``camera``: one
 :class:`~jaxgaze.poses.CameraPoses` per wearer (a sequence in file order, or a dict by person)
 placing that wearer's scene camera in the shared world (frame ids = the files' frames).
@@ -126,22 +127,45 @@ Cameras = Union[None, CameraPoses, Sequence[CameraPoses], Mapping[str, CameraPos
 
 
 def wearer_names(paths: Sequence[str], persons: Optional[Sequence[str]], default_names: Sequence[str]) -> list[str]:
-    """One person name per path: ``persons`` if given, else each file's stem, or its folder's name
-    when the stem is one of the tool's ``default_names`` (``gaze_positions``, ``gaze``…)."""
+    """One person name per path: ``persons`` if given, else each file's stem, or, when the stem is one of
+    the tool's ``default_names`` (``gaze_positions``, ``gaze``…), the name of its recording folder:
+    the file's folder, or the folder above ``exports/NNN`` (Pupil Player's and Neon Player's export
+    layout, ``<recording>/exports/000/`` and ``<recording>/neon_player/exports/000/``). Names that
+    still clash (two recordings both named ``000``) are replaced by the nearest folder above them
+    whose names differ (``ann/2024_05_01/000`` and ``ben/2024_05_01/000`` → ``ann``, ``ben``)."""
     if persons is not None:
         persons = [str(p) for p in persons]
         if len(persons) != len(paths):
             raise ValueError(f"persons has {len(persons)} names for {len(paths)} files")
+        if not all(p.strip() for p in persons):
+            raise ValueError(f"persons has an empty name: {persons}")
     else:
-        persons = []
-        for path in paths:
-            full = os.path.abspath(os.fspath(path))
-            stem = os.path.splitext(os.path.basename(full))[0]
-            persons.append(os.path.basename(os.path.dirname(full)) if stem in default_names or not stem else stem)
+        chains = [_name_chain(path, default_names) for path in paths]
+        persons = [chain[0] for chain in chains]
+        for name in [p for p in dict.fromkeys(persons) if persons.count(p) > 1]:
+            clashing = [i for i, p in enumerate(persons) if p == name]
+            for level in range(1, max(len(chains[i]) for i in clashing)):
+                above = [chains[i][level] if level < len(chains[i]) else None for i in clashing]
+                if None not in above and len(set(above)) == len(above):
+                    for i, folder in zip(clashing, above):
+                        persons[i] = folder
+                    break
     twice = [p for p in dict.fromkeys(persons) if persons.count(p) > 1]
     if twice:
         raise ValueError(f"two files give the person name '{twice[0]}': pass persons=[...], one name per file")
     return persons
+
+
+def _name_chain(path, default_names: Sequence[str]) -> list[str]:
+    """A file's default person name (:func:`wearer_names`), then the folders above its recording folder, nearest first."""
+    full = os.path.abspath(os.fspath(path))
+    stem = os.path.splitext(os.path.basename(full))[0]
+    folders = [f for f in os.path.dirname(full).split(os.sep) if f][::-1]  # nearest first
+    if stem and stem not in default_names:
+        return [stem] + folders
+    if len(folders) > 2 and folders[0].isdigit() and folders[1] == "exports":  # <recording>/exports/000/
+        folders = folders[3:] if folders[2] == "neon_player" and len(folders) > 3 else folders[2:]
+    return folders or [stem]
 
 
 def as_paths(paths) -> list[str]:
@@ -211,7 +235,7 @@ def person_rays(recording: RayRecording, person: Optional[str], path):
                              f"to {path}")
         person = names[0]
     mask = np.asarray(recording.rays.mask)
-    origins, directions = np.asarray(recording.rays.origins), np.asarray(recording.rays.directions)
+    origins, directions = recording.world_origins(), np.asarray(recording.rays.directions)
     bandwidth = np.asarray(recording.rays.bandwidth)
     rows = [(int(frame), t, n) for t, (frame, persons) in enumerate(zip(recording.frame_ids, recording.persons))
             for n, name in enumerate(persons) if name == person and mask[t, n]]

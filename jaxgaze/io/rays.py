@@ -8,13 +8,12 @@ bandwidth ``h`` (radians). Errors raise :class:`~jaxgaze.io.text.InputFileError`
 
 from __future__ import annotations
 
-import csv
 import math
-from typing import NamedTuple, Sequence
+from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
-from jaxgaze.io.text import InputFileError, atomic_path, format_float, read_csv_table
+from jaxgaze.io.text import InputFileError, atomic_path, csv_writer, format_float, read_csv_table
 from jaxgaze.rays import GazeRays, check_bandwidth
 
 __all__ = ["CSV_COLUMNS", "DEFAULT_BANDWIDTH", "RayRecording", "read_rays_csv", "write_rays_csv", "stack_rays"]
@@ -25,17 +24,30 @@ CSV_COLUMNS = ("frame", "person", "ox", "oy", "oz", "dx", "dy", "dz")
 DEFAULT_BANDWIDTH = 0.05
 
 _MIN_DIRECTION_NORM = 1e-9
+_RECENTRE_DISTANCE = 1024.0  # metres, as jaxgaze.concurrence.modes.RECENTRE_DISTANCE
 _FLOAT32_MAX = 3.4028234e38
 
 
 class RayRecording(NamedTuple):
     """A recording of gaze rays: sorted ``frame_ids`` ``(T,)``, the ``persons`` of each frame
     (lists, in file order) and :class:`~jaxgaze.rays.GazeRays` ``(T, N)`` padded and masked
-    as by :meth:`GazeRays.stack` (``N`` the most people in a frame)."""
+    as by :meth:`GazeRays.stack` (``N`` the most people in a frame).
+
+    ``reference`` (float64 ``(3,)`` metres, or ``None`` for the world origin) is the world point
+    the rays' origins are measured from: the eyes in the world are ``rays.origins + reference``
+    (:meth:`world_origins`). :func:`stack_rays` sets it for recordings far from the world origin
+    (docs/conventions.md, "Far from the origin"), and locations found from ``rays`` are relative to it.
+    """
 
     frame_ids: list
     persons: list
     rays: GazeRays
+    reference: Optional[np.ndarray] = None
+
+    def world_origins(self) -> np.ndarray:
+        """``(T, N, 3)`` float64 eyes in the world frame: ``rays.origins + reference``."""
+        origins = np.asarray(self.rays.origins, dtype=np.float64)
+        return origins if self.reference is None else origins + self.reference
 
 
 def stack_rays(frames: Sequence[int], persons: Sequence[str], origins, directions, bandwidth, *,
@@ -50,12 +62,19 @@ def stack_rays(frames: Sequence[int], persons: Sequence[str], origins, direction
     rows_of: dict[int, list[int]] = {}
     for i, frame in enumerate(frames):
         rows_of.setdefault(int(frame), []).append(i)
+    origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    reference = None
+    if np.all(np.isfinite(origins)) and np.abs(origins).max() > _RECENTRE_DISTANCE:
+        # Far from the world origin (UTM, ECEF): measure the eyes from their mean, in float64,
+        # before float32 rounds them (0.5 m at 5,000 km).
+        reference = np.round(origins.mean(axis=0))
+        origins = origins - reference
     try:
         frame_array, rays = GazeRays.from_rows(np.asarray(frames, dtype=np.int64), origins, directions, bandwidth)
     except ValueError as error:
         raise InputFileError(str(error), path) from None
     frame_ids = [int(f) for f in frame_array]
-    return RayRecording(frame_ids, [[persons[i] for i in rows_of[f]] for f in frame_ids], rays)
+    return RayRecording(frame_ids, [[persons[i] for i in rows_of[f]] for f in frame_ids], rays, reference)
 
 
 def _float32(row, column: str) -> float:
@@ -111,10 +130,12 @@ def write_rays_csv(path, recording: RayRecording) -> int:
     returns the number of rows. Padded slots are not written."""
     mask = np.asarray(recording.rays.mask)
     origins, directions = np.asarray(recording.rays.origins), np.asarray(recording.rays.directions)
+    if recording.reference is not None:  # float64 world coordinates; otherwise the float32 values as read
+        origins = recording.world_origins()
     bandwidth = np.asarray(recording.rays.bandwidth)
     rows = 0
     with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
+        writer = csv_writer(handle)
         writer.writerow(CSV_COLUMNS + ("bandwidth",))
         for t, (frame, persons) in enumerate(zip(recording.frame_ids, recording.persons)):
             for n in np.flatnonzero(mask[t]):

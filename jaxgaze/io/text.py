@@ -1,6 +1,7 @@
 """Reading the text inputs: one error type (:class:`InputFileError`), one text reader
 (:func:`read_text`), one CSV table reader (:func:`read_csv_table`); and :func:`atomic_path`,
-the one way jaxgaze writes an output file.
+the one way jaxgaze writes an output file (:func:`atomic_outputs`: several of them together),
+and :func:`csv_writer`, the one way it writes CSV (no spreadsheet formulas).
 
 Every reader reports a malformed file as an :class:`InputFileError` (a ``ValueError``)
 whose message is ``path, line N: what`` (or ``path: what`` when no line applies), so that
@@ -11,22 +12,36 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import decimal
 import math
 import os
+import re
+import shutil
+import socket
+import stat
 import tempfile
+import threading
 import warnings
+import zlib
 from typing import NamedTuple, Optional
 
 __all__ = [
+    "is_number",
     "InputFileError",
     "CsvRow",
     "CsvTable",
     "atomic_path",
+    "atomic_outputs",
+    "replace_with_the_others",
+    "remove_stale_temporaries",
+    "csv_writer",
+    "spreadsheet_safe",
     "write_csv_rows",
     "read_text",
     "read_lines",
     "read_csv_table",
     "parse_number",
+    "parse_integer",
     "format_float",
     "header_problem",
     "first_few",
@@ -45,18 +60,44 @@ class InputFileError(ValueError):
         super().__init__(f"{where}: {self.what}")
 
 
+#: Largest text input jaxgaze reads (bytes): checked before reading, so that a huge file fails at once.
+MAX_INPUT_BYTES = 1 << 30
+#: Longest line of a text input (bytes): checked while reading, so that a file with no newline fails early.
+MAX_LINE_BYTES = 1 << 20
+_READ_CHUNK = 1 << 20
+
+
 def read_text(path, error: type[InputFileError] = InputFileError, what: str = "input") -> str:
     """The contents of a UTF-8 text file (a BOM is dropped); ``error`` for a missing or
-    unreadable file or bad bytes, naming the file by ``what`` ("model file not found")."""
+    unreadable file or bad bytes, naming the file by ``what`` ("model file not found").
+
+    Bounded on hostile input: only a regular file is read (a FIFO, a device such as
+    ``/dev/zero`` or a socket is refused without blocking), one larger than
+    :data:`MAX_INPUT_BYTES` is refused before reading, and the reading stops at a NUL byte
+    (a binary file) or a line longer than :data:`MAX_LINE_BYTES`.
+    """
     try:
-        with open(path, "rb") as handle:
-            data = handle.read()
+        # O_NONBLOCK: opening a FIFO that has no writer would otherwise block forever.
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
     except FileNotFoundError:
         raise error(f"{what} file not found", path) from None
     except IsADirectoryError:
         raise error(f"{what} is a directory, not a file", path) from None
     except OSError as exc:
         raise error(f"cannot read the {what} file: {exc.strerror or exc}", path) from None
+    with contextlib.ExitStack() as stack:
+        stack.callback(os.close, fd)
+        info = os.fstat(fd)
+        if stat.S_ISDIR(info.st_mode):
+            raise error(f"{what} is a directory, not a file", path)
+        if not stat.S_ISREG(info.st_mode):
+            kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(info.st_mode) else "a device"
+                    if stat.S_ISCHR(info.st_mode) or stat.S_ISBLK(info.st_mode) else "not a regular file")
+            raise error(f"{what} is {kind}: jaxgaze reads regular files only", path)
+        if info.st_size > MAX_INPUT_BYTES:
+            raise error(f"{what} file is {_bytes(info.st_size)}, larger than the {_bytes(MAX_INPUT_BYTES)} jaxgaze "
+                        "reads (split the recording)", path)
+        data = _bounded_read(open(fd, "rb", closefd=False), path, error, what)
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -64,49 +105,225 @@ def read_text(path, error: type[InputFileError] = InputFileError, what: str = "i
                     data[: exc.start].count(b"\n") + 1) from None
 
 
+def _bounded_read(handle, path, error, what) -> bytes:
+    """The bytes of an open regular file, read in chunks up to :data:`MAX_INPUT_BYTES` (it may grow
+    while read); ``error`` at the first NUL byte or a line longer than :data:`MAX_LINE_BYTES`."""
+    chunks, size, lines_before, current = [], 0, 0, 0  # current: bytes of the line not yet ended
+    while True:
+        try:
+            chunk = handle.read(_READ_CHUNK)
+        except OSError as exc:
+            raise error(f"cannot read the {what} file: {exc.strerror or exc}", path) from None
+        if not chunk:
+            return b"".join(chunks)
+        nul = chunk.find(b"\0")
+        if nul >= 0:
+            line = lines_before + chunk.count(b"\n", 0, nul) + 1
+            raise error(f"{what} is not a text file: a NUL byte at byte {size + nul} (binary data?)", path, line)
+        parts = chunk.split(b"\n")
+        lengths = [current + len(parts[0])] + [len(part) for part in parts[1:]]
+        long = next((k for k, length in enumerate(lengths) if length > MAX_LINE_BYTES), None)
+        if long is not None:
+            raise error(f"{what} has a line longer than {_bytes(MAX_LINE_BYTES)} (not a text table?)", path,
+                        lines_before + long + 1)
+        current = lengths[-1]
+        lines_before += len(parts) - 1
+        size += len(chunk)
+        if size > MAX_INPUT_BYTES:
+            raise error(f"{what} file is larger than the {_bytes(MAX_INPUT_BYTES)} jaxgaze reads", path)
+        chunks.append(chunk)
+
+
+def _bytes(count: int) -> str:
+    """``count`` bytes in words: "2 GiB", "1 MiB", "10 bytes"."""
+    for unit, size in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if count >= size:
+            return f"{count / size:.3g} {unit}"
+    return f"{count} bytes"
+
+
 def read_lines(path, error: type[InputFileError] = InputFileError, what: str = "input") -> list[str]:
     """The lines of a UTF-8 text file (a BOM is dropped); ``error`` for a missing file or bad bytes."""
     return read_text(path, error, what).splitlines()
+
+
+#: Temporary files of the writers: ``.NAME.jaxgaze-tmp-HOST-PID-RANDOM.EXT`` beside ``NAME`` (HOST: a hash
+#: of the machine's name, PID: the writing process), so that litter of a killed process is recognised.
+TEMPORARY_MARK = ".jaxgaze-tmp-"
+_HOST = format(zlib.crc32(socket.gethostname().encode("utf-8", "replace")), "08x")
+_TRANSACTIONS = threading.local()
+
+
+def _process_is_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        return True  # another user's process, or not a process id we can ask about: leave its files
+    return True
+
+
+def remove_stale_temporaries(path) -> list:
+    """Delete the temporary files that a killed writer of ``path`` left beside it (its process,
+    on this machine, is gone); returns their paths. SIGKILL leaves them: no process can clean
+    up after being killed, so the next writer of the same file does."""
+    target = os.path.abspath(os.fspath(path))
+    directory, name = os.path.split(target)
+    pattern = re.compile(re.escape(f".{name}{TEMPORARY_MARK}{_HOST}-") + r"(\d+)-")
+    removed = []
+    with contextlib.suppress(OSError):
+        for entry in os.listdir(directory):
+            match = pattern.match(entry)
+            if match and not _process_is_alive(int(match[1])):
+                with contextlib.suppress(OSError):
+                    os.unlink(os.path.join(directory, entry))
+                    removed.append(os.path.join(directory, entry))
+    return removed
+
+
+@contextlib.contextmanager
+def atomic_outputs(before_commit=None):
+    """Write several outputs together: every :func:`atomic_path` inside renames its temporary file
+    onto its output only when the outermost block ends without an error, all in a row; on any
+    error or interrupt every temporary file is deleted and no output changes (no new figure beside
+    old tables). ``before_commit()`` runs just before the renames and may raise to cancel them."""
+    stack = getattr(_TRANSACTIONS, "stack", None)
+    if stack is not None:  # nested: the outermost block commits
+        yield
+        return
+    pending = _TRANSACTIONS.stack = []
+    try:
+        yield
+        if before_commit is not None:
+            before_commit()
+    except BaseException:
+        _TRANSACTIONS.stack = None
+        for tmp, _, _ in pending:
+            with contextlib.suppress(OSError):
+                shutil.rmtree(tmp) if os.path.isdir(tmp) and not os.path.islink(tmp) else os.unlink(tmp)
+        raise
+    _TRANSACTIONS.stack = None
+    for index, (tmp, target, path) in enumerate(pending):
+        try:
+            os.replace(tmp, target)
+        except OSError as error:
+            for later, _, _ in pending[index:]:
+                with contextlib.suppress(OSError):
+                    os.unlink(later)
+            if error.errno is not None and error.filename in (None, tmp):
+                error.filename = os.fspath(path)
+            raise
+
+
+def replace_with_the_others(tmp, path) -> bool:
+    """Inside :func:`atomic_outputs`: rename the complete temporary file or folder ``tmp`` onto ``path``
+    together with the other outputs (an empty folder ``path`` is replaced), and return ``True``;
+    outside, do nothing and return ``False`` (the caller renames it)."""
+    stack = getattr(_TRANSACTIONS, "stack", None)
+    if stack is None:
+        return False
+    stack.append((os.fspath(tmp), os.path.abspath(os.fspath(path)), path))
+    return True
 
 
 @contextlib.contextmanager
 def atomic_path(path):
     """Yield a temporary path next to ``path`` and ``os.replace`` it onto ``path`` only on success.
 
-    The temporary file keeps ``path``'s extension (writers such as OpenCV's pick the
-    format from it) and gets the permissions an existing ``path`` has (else the
-    umask's). On any failure it is deleted and an existing ``path`` is left untouched,
-    so no half-written output is ever seen. ``OSError`` propagates, with ``filename``
-    set to ``path`` when it has an errno and named no file or the temporary one.
+    The temporary file (``.NAME.jaxgaze-tmp-HOST-PID-RANDOM.EXT``, :data:`TEMPORARY_MARK`) keeps
+    ``path``'s extension (writers such as OpenCV's pick the format from it) and gets the
+    permissions an existing ``path`` has (else the umask's). On any failure it is deleted and an
+    existing ``path`` is left untouched, so no half-written output is ever seen. Inside
+    :func:`atomic_outputs` (and inside another ``atomic_path``) the rename waits for the outermost
+    block, so that the outputs change together. Temporary files of ``path`` left by a killed
+    process are deleted first (:func:`remove_stale_temporaries`). ``OSError`` propagates, with
+    ``filename`` set to ``path`` when it has an errno and named no file or the temporary one.
     """
     target = os.path.abspath(os.fspath(path))
-    stem, ext = os.path.splitext(os.path.basename(target))
-    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(target), prefix=f".{stem}.", suffix=f".tmp{ext}")
-    os.close(fd)
-    try:
+    name = os.path.basename(target)
+    remove_stale_temporaries(target)
+    with atomic_outputs():
         try:
-            file_mode = os.stat(target).st_mode & 0o7777
-        except OSError:
-            umask = os.umask(0)
-            os.umask(umask)
-            file_mode = 0o666 & ~umask
-        os.chmod(tmp, file_mode)
-        yield tmp
-        os.replace(tmp, target)
-    except BaseException as error:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        if isinstance(error, OSError) and error.errno is not None and error.filename in (None, tmp):
-            error.filename = os.fspath(path)
-        raise
+            fd, tmp = tempfile.mkstemp(dir=os.path.dirname(target), suffix=os.path.splitext(name)[1],
+                                       prefix=f".{name}{TEMPORARY_MARK}{_HOST}-{os.getpid()}-")
+        except OSError as error:
+            if error.errno is not None and error.filename in (None, os.path.dirname(target)):
+                error.filename = os.fspath(path)
+            raise
+        os.close(fd)
+        try:
+            try:
+                file_mode = os.stat(target).st_mode & 0o7777
+            except OSError:
+                umask = os.umask(0)
+                os.umask(umask)
+                file_mode = 0o666 & ~umask
+            os.chmod(tmp, file_mode)
+            yield tmp
+            _TRANSACTIONS.stack.append((tmp, target, path))
+        except BaseException as error:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            if isinstance(error, OSError) and error.errno is not None and error.filename in (None, tmp):
+                error.filename = os.fspath(path)
+            raise
+
+
+#: What makes a spreadsheet read a cell as a formula (OWASP, "CSV Injection").
+SPREADSHEET_TRIGGERS = ("=", "+", "-", "@", "\t", "\r")
+
+
+def is_number(text: str) -> bool:
+    """Whether ``float`` reads ``text`` (``-0.5``, ``-inf``, ``1e-3``)."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def spreadsheet_safe(cell):
+    """``cell``, with a ``'`` in front when it is text a spreadsheet would run as a formula (it
+    begins with ``=``, ``+``, ``-``, ``@``, a tab or a carriage return and is not a number:
+    ``-0.5`` stays). :meth:`CsvRow.cell` takes the ``'`` off again."""
+    if isinstance(cell, str) and cell.startswith(SPREADSHEET_TRIGGERS) and not is_number(cell):
+        return "'" + cell
+    return cell
+
+
+class _SafeCsvWriter:
+    """A ``csv.writer`` whose rows pass through :func:`spreadsheet_safe`; a row with a carriage return
+    in a cell has every cell quoted (``csv`` quotes only the ``\\n`` of the line end, and a bare
+    ``\\r`` would end the row for a reader)."""
+
+    def __init__(self, handle):
+        self._writer = csv.writer(handle, lineterminator="\n")
+        self._quoted = csv.writer(handle, lineterminator="\n", quoting=csv.QUOTE_ALL)
+
+    def writerow(self, row):
+        cells = [spreadsheet_safe(cell) for cell in row]
+        writer = self._quoted if any(isinstance(c, str) and "\r" in c for c in cells) else self._writer
+        return writer.writerow(cells)
+
+    def writerows(self, rows):
+        for row in rows:
+            self.writerow(row)
+
+
+def csv_writer(handle) -> _SafeCsvWriter:
+    """The CSV writer of every CSV jaxgaze writes (``\\n`` line ends): text cells that a spreadsheet
+    would run as a formula get a leading ``'`` (:func:`spreadsheet_safe`), numbers stay as they are."""
+    return _SafeCsvWriter(handle)
 
 
 def write_csv_rows(path, columns, rows) -> int:
     """Write a header of ``columns`` and the iterable ``rows`` (lists of cells) as CSV, atomically
-    (:func:`atomic_path`); returns the number of rows written."""
+    (:func:`atomic_path`) and with no spreadsheet formula (:func:`csv_writer`); returns the number of
+    rows written."""
     count = 0
     with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
+        writer = csv_writer(handle)
         writer.writerow(columns)
         for row in rows:
             writer.writerow(row)
@@ -123,6 +340,26 @@ def parse_number(text: str, what: str, path, line: int, error: type[InputFileErr
         raise error(f"{what} is not a number: {text!r}", path, line) from None
     if finite and not math.isfinite(value):
         raise error(f"{what} is not finite: {text!r}", path, line)
+    return value
+
+
+def parse_integer(text: str, what: str, path, line: int, error: type[InputFileError] = InputFileError) -> int:
+    """``text`` as an exact signed 64-bit integer (``3``, ``3.0`` or ``3e2``), or ``error`` naming ``what``
+    at ``path, line``. Parsed as a decimal, never through float64, so that ids above 2^53 such as
+    nanosecond timestamps come back exactly."""
+    try:
+        value = decimal.Decimal(text.strip())
+    except decimal.InvalidOperation:
+        raise error(f"{what} is not a number: {text!r}", path, line) from None
+    if not value.is_finite():
+        raise error(f"{what} is not finite: {text!r}", path, line)
+    if value.adjusted() > 18:  # |value| ≥ 1e19 > 2^63, tested first: 1e999999999 is a finite decimal
+        raise error(f"{what} is out of range for a 64-bit integer: {text!r}", path, line)
+    if value != value.to_integral_value():
+        raise error(f"{what} must be an integer, got {text!r}", path, line)
+    value = int(value)
+    if not -(2**63) <= value < 2**63:
+        raise error(f"{what} is out of range for a 64-bit integer: {text!r}", path, line)
     return value
 
 
@@ -180,8 +417,10 @@ class CsvRow:
         return self.table.error(message, self.table.path, self.line)
 
     def cell(self, column: str) -> str:
-        """The stripped text of ``column`` (possibly empty)."""
-        return self.cells[self.table.index[column]].strip()
+        """The stripped text of ``column`` (possibly empty); the ``'`` that jaxgaze's writers put
+        in front of a would-be formula (:func:`spreadsheet_safe`) is taken off."""
+        text = self.cells[self.table.index[column]].strip()
+        return text[1:] if text.startswith("'") and text[1:2] in SPREADSHEET_TRIGGERS else text
 
     def text(self, column: str) -> str:
         """The stripped text of ``column``; an error if it is empty."""
@@ -196,13 +435,9 @@ class CsvRow:
                             finite=finite)
 
     def integer(self, column: str) -> int:
-        """``column`` as an integer (``3`` or ``3.0``; not ``3.5``, nor beyond 64 bits)."""
-        value = self.number(column)
-        if not value.is_integer():
-            raise self.error(f"column '{column}' must be an integer, got {self.cell(column)!r}")
-        if abs(value) >= 2.0 ** 63:
-            raise self.error(f"column '{column}' is out of range for a 64-bit integer: {self.cell(column)!r}")
-        return int(value)
+        """``column`` as an exact integer (``3``, ``3.0`` or ``3e2``; not ``3.5``, nor beyond 64 bits), via
+        :func:`parse_integer`."""
+        return parse_integer(self.text(column), f"column '{column}'", self.table.path, self.line, self.table.error)
 
 
 class CsvTable(NamedTuple):

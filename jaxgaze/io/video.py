@@ -38,7 +38,7 @@ os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # before OpenCV first ope
 import cv2  # noqa: E402
 import numpy as np
 
-from jaxgaze.io.text import InputFileError, atomic_path
+from jaxgaze.io.text import InputFileError, atomic_path, replace_with_the_others
 from jaxgaze.vision.images import check_image
 
 __all__ = [
@@ -313,9 +313,10 @@ def write_frames(path, frames, fps: float) -> int:
             count += 1
         if count == 0:
             raise ValueError(f"cannot write frames to {path}: no frames")
-        if os.path.isdir(target):
-            os.rmdir(target)  # empty (checked above); os.replace needs it gone on some systems
-        os.replace(tmp, target)
+        if not replace_with_the_others(tmp, path):  # with the command's other outputs, else now
+            if os.path.isdir(target):
+                os.rmdir(target)  # empty (checked above); os.replace needs it gone on some systems
+            os.replace(tmp, target)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

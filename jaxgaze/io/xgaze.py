@@ -176,7 +176,9 @@ def xgaze_to_rays(pitch, yaw, face_centers_opencv, *, R_normalizing=None, R_head
                   bandwidth: float = DEFAULT_BANDWIDTH_XGAZE, camera: Optional[CameraPoses] = None,
                   path=None) -> RayRecording:
     """Rays from ``M`` network outputs ``pitch, yaw (M,)`` (radians, normalised frame) and face centres
-    ``(M, 3)`` (OpenCV camera frame, metres), with either the normalising rotations ``R_normalizing
+    ``face_centers_opencv (M, 3)`` in the **OpenCV** camera axes (origin the camera centre, x right,
+    y down, z forward; ptgaze's ``face.center``), metres (unlike :func:`~jaxgaze.io.gaze360.gaze360_to_rays`
+    and :func:`~jaxgaze.io.l2cs.l2cs_to_rays`, which take our axes), with either the normalising rotations ``R_normalizing
     (M, 3, 3)`` or the head rotations ``R_head (M, 3, 3)`` (camera from head model, OpenCV) from which
     :func:`normalizing_rotation` computes them. Direction ``Rᵀ g_norm`` (:func:`denormalize_gaze`),
     origin the face centre, both turned into our axes (``R_OURS_FROM_OPENCV``) and placed by ``camera``.
@@ -286,7 +288,7 @@ def write_xgaze(path, recording: RayRecording, *, camera: Optional[CameraPoses] 
     mask = np.asarray(recording.rays.mask)
     t, n = np.nonzero(mask)
     frames = np.asarray(recording.frame_ids, dtype=np.int64)[t]
-    eyes, gaze = world_rays_to_camera(frames, np.asarray(recording.rays.origins, float)[t, n],
+    eyes, gaze = world_rays_to_camera(frames, recording.world_origins()[t, n],
                                       np.asarray(recording.rays.directions, float)[t, n], camera)
     centers, gaze = eyes @ R_OURS_FROM_OPENCV, gaze @ R_OURS_FROM_OPENCV
     if not (centers[:, 2] > 0).all():

@@ -11,8 +11,12 @@ from __future__ import annotations
 
 from typing import Mapping, NamedTuple, Sequence
 
+import warnings
+
 import numpy as np
 from jaxtyping import Bool, Float, Int
+
+from jaxgaze.rays import UnitWarning
 
 __all__ = ["JointData", "joint_data"]
 
@@ -167,8 +171,11 @@ def joint_data(
     Raises:
         ValueError: naming the array, frame and person, for inconsistent shapes, NaN
             where a person is present, a person never present, flags for an unknown
-            person, a rotation that is not one, or implausible units (degrees for
-            angles, millimetres for positions).
+            person, a rotation that is not one, or angles beyond π (degrees?).
+
+    Warns (:class:`~jaxgaze.rays.UnitWarning`, implausible rather than impossible: the
+    library's unit rule) when an eye lies more than :data:`MAX_SCENE_EXTENT_M` from the
+    scene centre (millimetres?), naming the person and frame.
     """
     gaze = np.asarray(gaze_angles, dtype=float)
     if gaze.ndim != 3 or gaze.shape[-1] != 2:
@@ -205,10 +212,12 @@ def joint_data(
     if np.abs(gaze[m]).max() > np.pi + 1e-6:
         raise ValueError(f"gaze_angles reach {np.abs(gaze[m]).max():.3g}, beyond π: they must be radians (degrees?)")
     centre = np.median(eyes[m], axis=0)
-    extent = np.linalg.norm(eyes[m] - centre, axis=-1).max()
-    if extent > MAX_SCENE_EXTENT_M:
-        raise ValueError(f"eye_positions spread {extent:.3g} m from the scene centre, beyond {MAX_SCENE_EXTENT_M:g} m: "
-                         "they must be metres (millimetres?)")
+    offset = np.where(m, np.linalg.norm(np.where(m[..., None], eyes, centre) - centre, axis=-1), 0.0)
+    if offset.max() > MAX_SCENE_EXTENT_M:
+        t, p = (int(i) for i in np.unravel_index(np.argmax(offset), offset.shape))
+        warnings.warn(f"eye_positions of person {people[p]!r} at frame {t} are {offset[t, p]:.3g} m from the scene "
+                      f"centre, beyond {MAX_SCENE_EXTENT_M:g} m: they must be metres (millimetres?)", UnitWarning,
+                      stacklevel=2)
     gram = np.einsum("...ji,...jk->...ik", R, R) - np.eye(3)
     error = np.where(m, np.abs(gram).max(axis=(-2, -1)), 0.0)
     det = np.where(m, np.linalg.det(np.where(m[..., None, None], R, np.eye(3))), 1.0)

@@ -82,7 +82,7 @@ def _cli_record(d, tmp_path, *options):
 def _record(d, result, seed=0):
     """The BIAS.json record of ``result`` with the inputs ``jaxgaze bias`` names for the dyad's files."""
     inputs = {"gaze": str(d["gaze_csv"]), "format": "csv", "frame_of_reference": "world", "speech": str(d["rttm"]),
-              "targets": "GAZE.csv columns tx, ty, tz"}
+              "targets": str(d["gaze_csv"]), "targets_from": "the gaze file's columns tx, ty, tz"}
     return bias_record(result, inputs=inputs, fps=FPS, seed=seed)
 
 

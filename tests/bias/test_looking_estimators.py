@@ -325,7 +325,8 @@ def lmeds_reference(offsets):
 
 
 _angle = st.one_of(
-    st.floats(-0.7, 0.7, allow_nan=False, allow_subnormal=False),
+    # no magnitude under 1e-100: its square would be subnormal, which XLA:CPU flushes to zero (the reference does not)
+    st.floats(-0.7, 0.7, allow_nan=False, allow_subnormal=False).filter(lambda x: x == 0 or abs(x) >= 1e-100),
     st.integers(-3, 3).map(lambda i: 0.05 * i),  # coarse grid: exact ties in distances and medians
 )
 

@@ -164,6 +164,8 @@ def test_bias_csv_bayes(dyad, tmp_path, capsys):
     record = json.loads(out.read_text())
     assert record["method"] == "bayes" and record["partner"] == "ben" and record["num_frames"] == dyad["num_frames"]
     assert record["input"]["format"] == "csv" and record["input"]["frame_of_reference"] == "world"
+    # issue 34: the file the targets came from, not a description of it
+    assert record["input"]["targets"] == str(dyad["gaze"]) and "tx, ty, tz" in record["input"]["targets_from"]
     assert record["fps"] == pytest.approx(FPS, rel=1e-3)
     assert record["num_selected"] == 60 and record["num_candidates"] > 60
     assert np.linalg.norm(np.asarray(record["bias_deg"]) - dyad["bias_deg"]) < 3.0, (record["bias_deg"],
@@ -209,6 +211,7 @@ def test_bias_openface_bayes_with_targets_csv(dyad, tmp_path, capsys):
     assert "targets in the camera frame (+x forward along the optical axis, +y left, +z up" in lines[1]
     record = json.loads(out.read_text())
     assert record["input"]["format"] == "openface" and record["input"]["frame_of_reference"] == "camera"
+    assert record["input"]["targets"] == str(dyad["camera_targets"])
     assert record["dropped"] == dropped
     assert record["num_frames"] == int(dyad["kept"].sum())
     assert record["frames"]["frame"] == [int(i) + 1 for i in np.flatnonzero(dyad["kept"])]
@@ -230,7 +233,7 @@ def test_bias_openface_constant_target_lmeds_and_segments_csv(dyad, tmp_path, ca
     record = json.loads(out.read_text())
     assert record["method"] == "lmeds" and record["posterior"] is None
     assert record["num_selected"] == 40 and sum(record["inliers"]) == 20
-    assert record["input"]["targets"].startswith("constant ")
+    assert record["input"]["targets"] is None and record["input"]["targets_from"].startswith(f"--targets {point}")
     assert np.linalg.norm(np.asarray(record["bias_deg"]) - dyad["bias_deg"]) < 3.0
     _check_frames_table(record)
     frames = record["frames"]
@@ -485,6 +488,10 @@ def test_bias_progress_bar_on_tty(dyad, tmp_path, capsys, monkeypatch):
                                               "--out", out, "--samples", "8", *quiet])
         assert status == 1, stderr
         lines = stderr.splitlines()
+        stages = [f"jaxgaze: estimating the gaze bias from {dyad['num_frames']} frames (bayes: NUTS, 8 warm-up steps "
+                  "and 8 draws; compiles first)…"]  # issue 34: a line per stage on a terminal, none with -q
+        assert lines[:-1] == ([] if quiet else stages), lines
+        lines = lines[-1:]
         assert len(lines) == 1 and lines[0].startswith("jaxgaze bias: the posterior failed: the sampler did not mix")
         assert "bulk ESS" in lines[0] and "--samples" in lines[0] and "RuntimeWarning" not in stderr
     assert [c["progress_bar"] for c in calls] == [True, False]

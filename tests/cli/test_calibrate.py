@@ -11,6 +11,8 @@ import csv
 import json
 import math
 import os
+import sys
+import warnings
 
 import jax
 import numpy as np
@@ -34,6 +36,13 @@ def angle_deg(u, v):
     u, v = np.asarray(u, float), np.asarray(v, float)
     cos = np.dot(u, v) / (np.linalg.norm(u) * np.linalg.norm(v))
     return math.degrees(math.acos(min(1.0, max(-1.0, cos))))
+
+
+def without_disagreement(stderr):
+    """stderr without the warning that the RANSAC apex and the posterior disagree: the session's apex (eq. 2) lies
+    0.33-0.36 m in front of both cameras, so every calibration of it samples the posterior and says so."""
+    return "".join(line for line in stderr.splitlines(keepends=True)
+                   if not line.startswith("jaxgaze: warning: the RANSAC eye centre"))
 
 
 def perpendicular_error(estimate, truth, direction):
@@ -73,11 +82,19 @@ def test_calibrate_with_posterior(session, tmp_path, capsys):
                  "--seed", "0", "--wearer", "ann"])  # the default 500 warm-up steps and draws
     assert status == 0, stderr
     assert stdout == ""
-    assert len(stderr.splitlines()) == 1 and stderr.startswith("jaxgaze: calibrated 'ann' from 80 frame(s)")
+    # The RANSAC apex (eq. 2) lies 0.33 m in front of the camera, where no eye is: said, and the posterior mean used.
+    warning, line = stderr.splitlines()
+    assert warning.startswith("jaxgaze: warning: the RANSAC eye centre (0.332, 0.028, -0.063) m is ")
+    assert "using the posterior mean" in warning
+    assert line.startswith("jaxgaze: calibrated 'ann' from 80 frame(s)") and "eye centre (posterior mean)" in line
     assert sorted(os.listdir(tmp_path)) == ["calib.json", "posterior.nc"]  # no temporary file left
 
     record = json.loads(out.read_text())
-    assert record["wearer"] == "ann" and record["frame"] == "camera" and record["method"] == "ransac+cone"
+    assert record["wearer"] == "ann" and record["frame"] == "camera" and record["method"] == "posterior mean"
+    assert record["eye_center"] == record["posterior"]["eye_center_mean"] and record["point_estimate"]["disagrees"]
+    errors = [np.linalg.norm(np.subtract(eye, session["eye_a"])) for eye in (record["eye_center"],
+                                                                             record["point_estimate"]["eye_center"])]
+    assert errors[0] < 0.1 < 0.3 < errors[1], errors
     assert record["num_points"] == 80 and 0.25 * 80 <= record["num_inliers"] <= 80
     assert abs(np.linalg.norm(record["direction"]) - 1) < 1e-9
     assert angle_deg(record["direction"], session["dir_a"]) < 2.0
@@ -91,9 +108,21 @@ def test_calibrate_with_posterior(session, tmp_path, capsys):
     assert summary["result"] == "successful"
     assert summary["r_hat_max"] < 1.05  # split r-hat of the one chain
     assert summary["ess_bulk_min"] >= 100 and summary["ess_tail_min"] >= 100 and summary["divergences"] <= 3
-    idata = arviz.from_netcdf(post)
-    assert idata.posterior["eye_center"].shape[:2] == (1, 500)
-    assert idata.posterior["bandwidth"].shape == (1, 500)
+    with warnings.catch_warnings():  # arviz's own tools on the file: no shape warning, r-hat as we report it
+        warnings.simplefilter("error")
+        idata = arviz.from_netcdf(post)
+        everything = arviz.summary(idata, round_to="none")
+    # the one chain of 500 draws, as its two halves (arviz needs two chains for r-hat)
+    assert idata.posterior["eye_center"].shape[:2] == (2, 250) and idata.posterior.attrs["sampler_chains"] == 1
+    assert idata.posterior["bandwidth"].shape == (2, 250) and summary["num_samples"] == 500
+    assert np.all(np.isfinite(everything["r_hat"]))
+    for name, row in summary["parameters"].items():
+        for column in ("r_hat", "ess_bulk", "ess_tail"):
+            assert row[column] == pytest.approx(everything.loc[name, column], rel=0, abs=1e-6), (name, column)
+    units = {"eye_center": "m", "direction": "1", "bandwidth": "rad", "outlier_share": "1",
+             "inlier_probability": "1"}
+    assert {name: idata.posterior[name].attrs["units"] for name in units} == units
+    assert idata.observed_data["points"].attrs["units"] == "m"
     # Every parameter has its mean, sd and 90% HDI in the JSON, as arviz computes them from the written draws,
     # and its ESS and split r-hat.
     names = ["eye_center", "direction", "bandwidth", "outlier_share"]
@@ -110,17 +139,22 @@ def test_calibrate_with_posterior(session, tmp_path, capsys):
     assert summary["parameters"]["bandwidth"]["sd"] == pytest.approx(draws.std(ddof=1), rel=1e-9)
 
 
-def test_calibrate_posterior_that_did_not_mix_exits_1(session, tmp_path, capsys):
-    """50 draws cannot give 100 effective ones: the command says so (one line, status 1), files written."""
+def test_calibrate_posterior_that_did_not_mix_exits_1(session, tmp_path, capsys, monkeypatch):
+    """50 draws cannot give 100 effective ones: the command says so (one line, status 1, also with -q), files
+    written; with -q no progress bar, even on a terminal (only the warning and the failure lines)."""
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
     out, post = tmp_path / "calib.json", tmp_path / "posterior.nc"
     status, stdout, stderr = run_main(
-        capsys, ["calibrate", session["a"], session["b"], "--out", out, "--posterior", post, "--samples", "50"])
+        capsys, ["calibrate", session["a"], session["b"], "--out", out, "--posterior", post, "--samples", "50", "-q"])
     assert status == 1 and stdout == ""
-    lines = stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("jaxgaze calibrate: the posterior failed: the sampler did not mix")
-    assert "bulk ESS" in lines[0] and "RuntimeWarning" not in stderr
-    summary = json.loads(out.read_text())["posterior"]
+    warning, line = stderr.splitlines()  # the point estimate is implausible, but a failed posterior cannot replace it
+    assert warning.startswith("jaxgaze: warning: the RANSAC eye centre") and "the point estimate is kept" in warning
+    assert line.startswith("jaxgaze calibrate: the posterior failed: the sampler did not mix")
+    assert "bulk ESS" in line and "RuntimeWarning" not in stderr
+    record = json.loads(out.read_text())
+    summary = record["posterior"]
     assert summary["result"] == "not_mixed" and summary["ess_bulk_min"] < 100
+    assert record["method"] == "ransac+cone" and record["eye_center"] == record["point_estimate"]["eye_center"]
     assert sorted(os.listdir(tmp_path)) == ["calib.json", "posterior.nc"]
 
 
@@ -140,15 +174,19 @@ def test_calibrate_in_millimetres_is_refused(session, tmp_path, capsys):
 
 
 def test_calibrate_warns_of_implausible_speeds(session, tmp_path, capsys):
-    """Timestamps in minutes make the cameras move at hundreds of m/s: a warning naming the units, still a result."""
+    """Timestamps in minutes make the cameras move at hundreds of m/s: an error naming the units (issue 34's unit
+    rule); with --trust-units a warning, still a result."""
     for name in ("a", "b"):
         poses = session[f"poses_{name}"]
         write_pose_csv(tmp_path / f"{name}.csv", poses._replace(timestamps=poses.frame_ids / 1800.0))
     out = tmp_path / "c.json"
+    status, stdout, stderr = run_main(capsys, ["calibrate", tmp_path / "a.csv", tmp_path / "b.csv", "--out", out])
+    assert_failed(status, stdout, stderr, "camera A moves at a median", "pass --trust-units")  # the unit rule
+    assert not out.exists()
     status, stdout, stderr = run_main(capsys, ["calibrate", tmp_path / "a.csv", tmp_path / "b.csv", "--out", out,
-                                               "-q"])
+                                               "-q", "--trust-units"])
     assert status == 0 and stdout == "" and out.exists()
-    lines = stderr.splitlines()
+    lines = without_disagreement(stderr).splitlines()
     assert [line.split(" moves at")[0] for line in lines] == ["jaxgaze: warning: camera A", "jaxgaze: warning: camera B"]
     assert all("or timestamps are not in seconds; poses must be in metres and timestamps in seconds" in line
                for line in lines)
@@ -160,6 +198,7 @@ def test_calibrate_shows_reader_warnings_as_warning_lines(session, tmp_path, cap
     cut.write_text(session["a"].read_text() + "999,1,0")
     status, stdout, stderr = run_main(capsys, ["calibrate", cut, session["b"], "--out", tmp_path / "c.json", "-q"])
     assert status == 0 and stdout == ""
+    stderr = without_disagreement(stderr)
     assert stderr.startswith("jaxgaze: warning: ") and "dropped the last row" in stderr
     assert len(stderr.splitlines()) == 1
 
@@ -191,6 +230,51 @@ def test_calibrate_two_wearers_of_one_joint_reconstruction(tmp_path, capsys):
     assert records[0]["num_points"] == 30
 
 
+def test_readme_joint_colmap_chain(tmp_path, capsys, monkeypatch):
+    """The README's joint-COLMAP calibration, then concurrences with both calibrations (issue 34, bug 3 and item 6).
+
+    The file holds ``simulate_calibration_session(jax.random.key(0), num_frames=30)`` (its header), so the
+    truth is known. Wearer A's RANSAC apex (eq. 2) lies 0.53 m in front of the camera, 0.55 m from the truth,
+    where no eye can be: the command samples the posterior (a progress bar on a terminal), says that the two
+    disagree (both values and the distance) and stores the posterior mean, within 10 cm of the truth. Each
+    wearer is named after its camera, so that the next command tells them apart without --wearer.
+    """
+    from jaxgaze.io.poses import read_colmap_images, write_camera_poses_csv
+    from jaxgaze.simulate import simulate_calibration_session
+
+    truth = np.asarray(simulate_calibration_session(jax.random.key(0), num_frames=30).eye_center_a)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    calib_a, calib_b = tmp_path / "calib.json", tmp_path / "calib_b.json"
+    status, stdout, stderr = run_main(capsys, ["calibrate", JOINT, JOINT, "--camera-id", "1", "2", "--out", calib_a])
+    assert status == 0 and stdout == "", stderr
+    assert "calibration posterior" in stderr  # the NUTS progress bar
+    warning = [line for line in stderr.splitlines() if line.startswith("jaxgaze: warning: the RANSAC eye centre")]
+    assert len(warning) == 1, stderr
+    assert "(0.534, 0.021, -0.070) m" in warning[0] and "posterior mean" in warning[0]
+    assert "outside the posterior's 90% region" in warning[0] and "using the posterior mean" in warning[0]
+    record = json.loads(calib_a.read_text())
+    assert record["wearer"] == "camera_1" and record["method"] == "posterior mean"
+    assert record["posterior"]["result"] == "successful" and record["posterior"]["file"] is None
+    assert record["eye_center"] == record["posterior"]["eye_center_mean"]
+    assert np.linalg.norm(np.subtract(record["eye_center"], truth)) < 0.1
+    ransac = record["point_estimate"]["eye_center"]
+    assert np.linalg.norm(np.subtract(ransac, truth)) > 0.5  # what the JSON held before
+    distance = np.linalg.norm(np.subtract(ransac, record["eye_center"]))
+    assert f"{distance:.2f} m from the posterior mean" in warning[0]
+
+    status, stdout, stderr = run_main(capsys, ["calibrate", JOINT, JOINT, "--camera-id", "2", "1", "--out", calib_b,
+                                               "-q"])
+    assert status == 0 and stdout == "", stderr
+    assert json.loads(calib_b.read_text())["wearer"] == "camera_2"
+    poses = tmp_path / "camera_poses.csv"
+    write_camera_poses_csv(poses, {f"camera_{c}": read_colmap_images(JOINT, camera_id=c) for c in (1, 2)})
+    out = tmp_path / "concurrences.csv"
+    status, stdout, stderr = run_main(capsys, ["concurrences", poses, "--calibration", calib_a, calib_b, "--out", out,
+                                               "-q"])
+    assert status == 0 and stdout == "", stderr
+    assert out.exists()
+
+
 def test_calibrate_frame_pattern(tmp_path, capsys):
     out = tmp_path / "c.json"
     status, _, stderr = run_main(capsys, ["calibrate", JOINT, JOINT, "--out", out, "--camera-id", "2", "1",
@@ -209,9 +293,9 @@ def test_calibrate_point_estimate_colmap_wearer(session, tmp_path, capsys):
     out.write_text("old\n")  # replaced
     status, stdout, stderr = run_main(capsys, ["calibrate", session["b"], session["a"], "--out", out, "-q"])
     assert status == 0, stderr
-    assert stdout == "" and stderr == ""
+    assert stdout == "" and stderr.startswith("jaxgaze: warning: the RANSAC eye centre") and without_disagreement(stderr) == ""
     record = json.loads(out.read_text())
-    assert record["wearer"] == "bob" and "posterior" not in record
+    assert record["wearer"] == "bob" and record["posterior"]["file"] is None and record["method"] == "posterior mean"
     assert set(record) >= {"wearer", "frame", "eye_center", "direction", "bandwidth", "num_points",
                            "num_inliers", "method"}
     assert angle_deg(record["direction"], session["dir_b"]) < 2.0
@@ -332,9 +416,9 @@ def test_calibrate_json_write_failure_leaves_nothing(session, tmp_path, capsys, 
 
     monkeypatch.setattr(os, "replace", full_disk)
     out = tmp_path / "c.json"
-    status, stdout, stderr = run_main(capsys, ["calibrate", session["a"], session["b"], "--out", out])
+    status, stdout, stderr = run_main(capsys, ["calibrate", session["a"], session["b"], "--out", out, "-q"])
     monkeypatch.setattr(os, "replace", real_replace)
-    assert_failed(status, stdout, stderr, "cannot write output: No space left on device", str(out))
+    assert_failed(status, stdout, without_disagreement(stderr), "cannot write output: No space left on device", str(out))
     assert os.listdir(tmp_path) == []
 
 
@@ -350,9 +434,11 @@ def test_calibrate_posterior_written_only_with_the_json(session, tmp_path, capsy
         summary = pd.DataFrame({"mean": [0.03], "r_hat": [1.01], "ess_bulk": [120.0]}, index=["bandwidth"])
         diagnostics = {"max_rhat": 1.01, "min_ess_bulk": 120.0, "min_ess_tail": 110.0, "divergences": 0,
                        "draws": 10, "chains": 2, "acceptance_rate": 0.8}
+        eye = np.asarray(kwargs["init_eye_center"])  # draws around the point estimate: the two agree
+        samples = {"eye_center": eye + 0.01 * np.random.default_rng(0).normal(size=(10, 3)),
+                   "bandwidth": np.full(10, 0.03), "inlier_probability": np.ones((10, len(points)))}
         return calibration_posterior.CalibrationPosterior(
-            idata, summary, np.asarray(kwargs["init_eye_center"]), np.asarray(kwargs["init_direction"]), 0.03,
-            {}, {}, diagnostics=diagnostics)
+            idata, summary, eye, np.asarray(kwargs["init_direction"]), 0.03, samples, {}, diagnostics=diagnostics)
 
     monkeypatch.setattr(calibration_posterior, "calibrate_cone_posterior", fake_posterior)
     out, post = tmp_path / "c.json", tmp_path / "p.nc"
@@ -375,9 +461,10 @@ def test_calibrate_posterior_written_only_with_the_json(session, tmp_path, capsy
 
     monkeypatch.setattr(os, "replace", json_fails)
     status, stdout, stderr = run_main(capsys, ["calibrate", session["a"], session["b"], "--out", out,
-                                               "--posterior", post])
+                                               "--posterior", post, "-q"])
     monkeypatch.setattr(os, "replace", real_replace)
-    assert_failed(status, stdout, stderr, "cannot write output: No space left on device", str(out))
+    assert_failed(status, stdout, without_disagreement(stderr), "cannot write output: No space left on device",
+                  str(out))
     assert os.listdir(tmp_path) == []
 
 
@@ -558,3 +645,25 @@ def test_concurrences_with_calibration_failure_modes(tmp_path, capsys, name):
     path = src if where == "input" else calibrations[where]
     assert stderr.rstrip("\n").endswith(f"({path})" if line is None else f"({path}:{line})")
     assert sorted(os.listdir(tmp_path)) == before
+
+
+def test_calibrate_a_partner_close_by_runs_with_the_override(session, tmp_path, capsys):
+    """The unit rule (issue 34): B's camera 16 times closer along A's gaze rays (about 10 cm in front of A's eye)
+    is implausible for a session, so exit 2 naming the file and --trust-units; trusted, the calibration runs and
+    finds A's true eye centre (the rays from it, and the angles, are unchanged)."""
+    a, b, eye = session["poses_a"], session["poses_b"], session["eye_a"]
+    y = np.einsum("tij,tj->ti", a.R_camera_from_world, b.centers - a.centers)  # A's points of regard
+    near = eye + (y - eye) / 16.0
+    write_pose_csv(tmp_path / "b.csv", b._replace(centers=a.centers + np.einsum("tji,tj->ti", a.R_camera_from_world,
+                                                                                 near)))
+    out = tmp_path / "calib.json"
+    argv = ["calibrate", session["a"], tmp_path / "b.csv", "--out", out]
+    status, stdout, stderr = run_main(capsys, argv)
+    assert_failed(status, stdout, stderr, "positions look too small for metres", "pass --trust-units",
+                  f"({session['a']})")
+    assert not out.exists()
+    status, _, stderr = run_main(capsys, argv + ["--trust-units", "-q"])
+    assert status == 0, stderr
+    assert stderr.startswith("jaxgaze: warning: positions look too small for metres")
+    found = np.asarray(json.loads(out.read_text())["eye_center"])
+    assert np.linalg.norm(found - eye) < 0.05, (found, eye)

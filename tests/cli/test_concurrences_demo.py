@@ -434,11 +434,17 @@ def test_concurrences_full_covariance_tracks_members_mutual_gaze_and_figure(tmp_
 
 
 def test_concurrences_units_caught_at_the_door(tmp_path, capsys):
-    """Origins in millimetres: no concurrence and one warning line naming the unit;
-    --bandwidth 3 (degrees meant): exit 2 before any work; 0.7 rad: a warning."""
+    """The unit rule (issue 34): origins in millimetres are exit 2 with one line naming the file, the frame id
+    and the unit, and no output (an existing one kept); with --trust-units, no concurrence and one warning line.
+    --bandwidth 3 (degrees meant): exit 2 before any work, always; 0.7 rad: exit 2 unless --trust-units."""
     mm = [[r[0], r[1], *(1000.0 * float(x) for x in r[2:5]), *r[5:]] for r in scene_rows()]
     src, out = write_csv(tmp_path / "mm.csv", mm), tmp_path / "out.csv"
-    status, _, stderr = run_main(capsys, ["concurrences", src, "--out", out, *CHUNK])
+    out.write_text("precious\n")
+    status, stdout, stderr = run_main(capsys, ["concurrences", src, "--out", out, *CHUNK])
+    assert_failed(status, stdout, stderr, "the eyes of frame 11 spread over", "(millimetres?)",
+                  "pass --trust-units if they are right", f"({src})")
+    assert out.read_text() == "precious\n"
+    status, _, stderr = run_main(capsys, ["concurrences", src, "--out", out, "--trust-units", *CHUNK])
     assert status == 0
     warning, done = stderr.splitlines()
     assert warning.startswith("jaxgaze: warning: the eyes of frame ") and warning.endswith("(millimetres?)")
@@ -448,7 +454,11 @@ def test_concurrences_units_caught_at_the_door(tmp_path, capsys):
     assert_failed(status, stdout, stderr, "--bandwidth 3 rad (172°)", "degrees? 3° is 0.0524 rad")
     assert not out.exists()
     metres = write_csv(tmp_path / "m.csv", scene_rows())
-    status, _, stderr = run_main(capsys, ["concurrences", metres, "--out", out, "--bandwidth", "0.7", *CHUNK])
+    status, stdout, stderr = run_main(capsys, ["concurrences", metres, "--out", out, "--bandwidth", "0.7", *CHUNK])
+    assert_failed(status, stdout, stderr, "bandwidth reaches 0.7 rad (40°), implausibly wide", "--trust-units")
+    assert not out.exists()
+    status, _, stderr = run_main(capsys, ["concurrences", metres, "--out", out, "--bandwidth", "0.7", "--trust-units",
+                                          *CHUNK])
     assert status == 0 and stderr.splitlines()[0] == ("jaxgaze: warning: bandwidth reaches 0.7 rad (40°), implausibly "
                                                       "wide for a gaze cone: it is in radians (degrees? 0.7° is "
                                                       "0.0122 rad)")

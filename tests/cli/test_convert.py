@@ -98,3 +98,54 @@ def test_convert_refuses_mixed_pupil_exports(tmp_path, capsys):
                                                DATA / "pupil_gaze_positions.csv", "--out", out])
     assert_failed(status, stdout, stderr, "mixed", "pupil_gaze_positions.csv")
     assert not out.exists()
+
+
+def _pupil_exports(root, *recordings):
+    """Pupil Player's export layout, ``<recording>/exports/000/gaze_positions.csv``, for each recording path."""
+    paths = []
+    for recording in recordings:
+        folder = root / recording / "exports" / "000"
+        folder.mkdir(parents=True)
+        (folder / "gaze_positions.csv").write_text((DATA / "pupil_gaze_positions.csv").read_text())
+        paths.append(folder / "gaze_positions.csv")
+    write_pose_csv(root / "pose.csv", camera_poses(np.eye(3)[None], [[0.0, 0.0, 1.5]], [0]))
+    return paths
+
+
+def test_convert_names_pupil_exports_by_their_recordings(tmp_path, capsys):
+    # Issue 34 item 6: two exports in the standard layout were both named '000', and the error
+    # pointed to persons=[...], which the command did not have.
+    paths = _pupil_exports(tmp_path, "ann", "ben")
+    out = tmp_path / "rays.csv"
+    poses = ["--camera-poses", tmp_path / "pose.csv", tmp_path / "pose.csv"]
+    status, _, err = run_main(capsys, ["convert", "--from", "pupil", *paths, *poses, "--out", out])
+    assert status == 0, err
+    assert sorted({p for frame in read_rays_csv(out).persons for p in frame}) == ["ann", "ben"]
+    status, _, err = run_main(capsys, ["convert", "--from", "pupil", *paths, *poses, "--people", "cat,dan",
+                                       "--out", out])
+    assert status == 0, err
+    assert read_rays_csv(out).persons[0] == ["cat", "dan"]
+    # two recordings of one name (Pupil Capture's <day>/000) are named by the folders above them
+    same = _pupil_exports(tmp_path / "more", "eve/2024_05_01/000", "fay/2024_05_01/000")
+    status, _, err = run_main(capsys, ["convert", "--from", "pupil", *same, *poses, "--out", out])
+    assert status == 0, err
+    assert read_rays_csv(out).persons[0] == ["eve", "fay"]
+
+
+def test_convert_pupil_name_and_pose_errors_name_the_options(tmp_path, capsys):
+    path, = _pupil_exports(tmp_path, "ann")
+    out = tmp_path / "rays.csv"
+    status, stdout, stderr = run_main(capsys, ["convert", "--from", "pupil", path, path, "--camera-poses",
+                                               tmp_path / "pose.csv", tmp_path / "pose.csv", "--out", out])
+    assert_failed(status, stdout, stderr, "'ann'", "--people A,B,...")
+    assert "persons=" not in stderr
+    status, stdout, stderr = run_main(capsys, ["convert", "--from", "pupil", path, path, "--people", "a,b",
+                                               "--out", out])
+    assert_failed(status, stdout, stderr, "--camera-poses")
+    assert "camera=" not in stderr and "CameraPoses" not in stderr
+    status, stdout, stderr = run_main(capsys, ["convert", "--from", "pupil", path, "--people", "a,b", "--out", out])
+    assert_failed(status, stdout, stderr, "--people has 2 names for 1 files")
+    status, stdout, stderr = run_main(capsys, ["convert", "--from", "gaze360", DATA / "gaze360_dump.csv",
+                                               "--people", "a", "--out", out])
+    assert_failed(status, stdout, stderr, "--people", "gaze360")
+    assert not out.exists()

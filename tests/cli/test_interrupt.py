@@ -41,7 +41,7 @@ def _bias_inputs(directory):
 
 def test_the_console_script_is_console_main():
     with open(os.path.join(ROOT, "pyproject.toml"), "rb") as f:
-        assert tomllib.load(f)["project"]["scripts"]["jaxgaze"] == "jaxgaze.cli:console_main"
+        assert tomllib.load(f)["project"]["scripts"]["jaxgaze"] == "jaxgaze_console:main"
 
 
 def test_ctrl_c_during_nuts_exits_130_and_leaves_no_file(tmp_path):

@@ -25,6 +25,7 @@ import jaxgaze.joint
 from jaxgaze.cli import main
 from jaxgaze.io.gaze import GAZE_COLUMNS
 from jaxgaze.io.openface import OPENFACE_COLUMNS
+from jaxgaze.io.text import atomic_path
 from jaxgaze.poses import matrices_to_quaternions
 from jaxgaze.results import RESULTS
 
@@ -128,7 +129,8 @@ def test_joint_end_to_end(fitted, scene_files):
 
     assert post.people == NAMES
     idata = az.from_netcdf(fitted["out"])
-    assert idata.posterior["bias"].shape == (1, 30, P, 2)
+    assert idata.posterior["bias"].shape == (2, 15, P, 2)  # the one chain as its two halves (arviz's split r-hat)
+    assert idata.posterior.attrs["sampler_chains"] == 1 and idata.posterior["bias"].attrs["units"] == "rad"
     assert list(idata.posterior["person"].values) == list(NAMES)
     # Speakers matched by name and through --speaker-map; 'dan' ignored.
     np.testing.assert_array_equal(idata.observed_data["speaking"].values, scene.speaking & scene.present)
@@ -170,10 +172,10 @@ def test_joint_exit_status_follows_the_fit(fitted, scene_files, tmp_path, capsys
 def test_joint_ctrl_c_leaves_no_file(fitted, scene_files, tmp_path, capsys, monkeypatch):
     import jaxgaze.cli.joint as command
 
-    def interrupt(path, posterior):
-        with open(path, "w") as f:
+    def interrupt(path, posterior):  # as the real writer: into atomic_path's temporary file
+        with atomic_path(path) as tmp, open(tmp, "w") as f:
             f.write("half")
-        raise KeyboardInterrupt
+            raise KeyboardInterrupt
 
     monkeypatch.setattr(jaxgaze.joint, "fit_joint", lambda *a, **k: fitted["posterior"])
     monkeypatch.setattr(command, "write_joint_netcdf", interrupt)
@@ -206,7 +208,7 @@ def _bad_cases(f):
         "reserved name": (gaze, ["--people", "a,elsewhere,c"], "reserved"),
         "duplicate name": ([gaze[0], gaze[0], gaze[1]], [], "two people are named 'ann'"),
         "bad --draws": (gaze, ["--draws", "many"], "--draws: not an integer"),
-        "too few --draws": (gaze, ["--draws", "2"], "--draws: must be at least 4"),
+        "too few --draws": (gaze, ["--draws", "6"], "--draws: must be at least 8"),
         "bad --fps": (gaze, ["--fps", "-5"], "--fps: must be a positive"),
         "bad --window-s": (gaze, ["--window-s", "0"], "--window-s"),
         "--fps against timestamps": (gaze, ["--fps", "30"], "disagrees with the timestamps"),

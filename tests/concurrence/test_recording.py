@@ -165,6 +165,12 @@ def test_stream_masks_absent_people(meeting, cold):
     np.testing.assert_allclose(np.asarray(found.locations)[valid], alone.locations[0][valid], atol=1e-4)
     np.testing.assert_array_equal(np.asarray(found.concurrences.membership)[:8], alone.membership[0][:8])
     assert int(state.frame) == 1
+    # One person in the frame (issue 34): no concurrence, no track, the same compiled program.
+    one = GazeRays(frame.origins[:1], frame.directions[:1], frame.bandwidth[:1])
+    found, state = stream.update(state, one)
+    assert not np.asarray(found.valid).any()
+    np.testing.assert_array_equal(np.asarray(found.track_ids), -1)
+    assert int(state.frame) == 2
 
 
 def test_stream_refuses_what_it_cannot_take(meeting):
@@ -174,4 +180,4 @@ def test_stream_refuses_what_it_cannot_take(meeting):
     with pytest.raises(ValueError, match="one frame"):
         stream.update(stream.init(), meeting[:2, :4])
     with pytest.raises(ValueError, match="num_people"):
-        ConcurrenceStream(num_people=1)
+        ConcurrenceStream(num_people=0)

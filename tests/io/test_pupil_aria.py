@@ -292,3 +292,21 @@ def test_simulated_aria_wearers_read_back_with_their_truth(tmp_path):
     np.testing.assert_allclose(np.asarray(recording.rays.origins), origins[:, :3], atol=1e-5)
     np.testing.assert_allclose(np.asarray(recording.rays.directions), np.asarray(wearers.scene.rays.directions),
                                atol=1e-6)
+
+
+def test_wearer_names_from_the_export_layout():
+    # Issue 34 item 6: Pupil Player's <recording>/exports/000/ named every wearer '000'.
+    core = ("gaze_positions",)
+    assert pupil.wearer_names(["/d/ann/exports/000/gaze_positions.csv", "/d/ben/exports/000/gaze_positions.csv"],
+                              None, core) == ["ann", "ben"]
+    assert pupil.wearer_names(["/d/ann/neon_player/exports/000/gaze.csv"], None, ("gaze",)) == ["ann"]
+    # Pupil Capture names recordings <day>/000: clashing names go to the nearest folders that differ
+    assert pupil.wearer_names(["/d/ann/2024_05_01/000/exports/000/gaze_positions.csv",
+                               "/d/ben/2024_05_01/000/exports/000/gaze_positions.csv"], None, core) == ["ann", "ben"]
+    assert pupil.wearer_names(["/d/2024_05_01/000/exports/000/gaze_positions.csv",
+                               "/d/2024_05_01/001/exports/000/gaze_positions.csv"], None, core) == ["000", "001"]
+    assert pupil.wearer_names(["/d/ann.csv", "/e/ben.csv"], None, core) == ["ann", "ben"]
+    with pytest.raises(ValueError, match="person name 'ann'"):
+        pupil.wearer_names(["/d/ann/gaze_positions.csv"] * 2, None, core)
+    with pytest.raises(ValueError, match="empty name"):
+        pupil.wearer_names(["/d/a.csv", "/d/b.csv"], ["ann", " "], core)

@@ -218,7 +218,6 @@ def _valid():
     (lambda a: a.update(speaking={"3": np.zeros(3)}), "speaking flags for an unknown person '3'"),
     (lambda a: a.update(speaking=np.zeros((3, 4))), "speaking has flags for 4 people, but there are 3"),
     (lambda a: a.update(gaze_angles=np.degrees(a["gaze_angles"]) * 10), r"radians \(degrees\?\)"),
-    (lambda a: a.update(eye_positions=a["eye_positions"] * 1000), r"metres \(millimetres\?\)"),
     (lambda a: a["R_world_from_head"].__setitem__((0, 1), 2 * np.eye(3)), "frame 0, person '1' is not a rotation"),
     (lambda a: a.update(measurement_scale=-np.ones((3, 3))), "measurement_scale must be finite and ≥ 0"),
     (lambda a: a.update(people=["a", "a", "b"]), "names must be unique"),
@@ -228,6 +227,18 @@ def test_bad_input_names_what_and_where(change, message):
     change(arrays)
     with pytest.raises(ValueError, match=message):
         joint_data(**arrays)
+
+
+def test_millimetres_are_a_unit_warning_naming_person_and_frame():
+    """Implausible, not impossible (the unit rule, issue 34): a UnitWarning, and the data still built."""
+    from jaxgaze.rays import UnitWarning
+
+    arrays = {k: np.array(v, copy=True) for k, v in _valid().items()}
+    arrays["eye_positions"] = arrays["eye_positions"] * 1000
+    with pytest.warns(UnitWarning, match=r"eye_positions of person '\d' at frame \d are .* m from the scene centre, "
+                                         r"beyond 50 m: they must be metres \(millimetres\?\)"):
+        data = joint_data(**arrays)
+    np.testing.assert_allclose(data.eye_positions, arrays["eye_positions"])
 
 
 def test_speaking_by_name_and_windows():
