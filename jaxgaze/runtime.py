@@ -18,14 +18,14 @@ from __future__ import annotations
 import contextlib
 import os
 import pathlib
-import socket
 import tempfile
 import warnings
-import zlib
 
 import jax
 from jax._src import compilation_cache as _jax_cache  # no public door to the cache's files
 from jax._src.compilation_cache_interface import CacheInterface
+
+from jaxgaze._temporary import remove_stale_temporaries, temporary_prefix
 
 __all__ = ["CACHE_DIR_VARIABLE", "CompilationCacheWarning", "default_cache_dir", "enable_compilation_cache",
            "enable_default_compilation_cache"]
@@ -36,8 +36,6 @@ class CompilationCacheWarning(UserWarning):
 
 
 _WARNED = []
-#: The machine, in the names of temporary files (a hash of its name): a shared folder holds other machines' too.
-_HOST = format(zlib.crc32(socket.gethostname().encode("utf-8", "replace")), "08x")
 
 
 def _cache_problem(path, problem: str) -> None:
@@ -55,14 +53,7 @@ class _RepairingCache(CacheInterface):
     def __init__(self, path):
         self._path = self.path = pathlib.Path(path)
         self._unwritable = False
-        for stale in self.path.glob(f".*-cache.jaxgaze-tmp-{_HOST}-*-*"):  # left by a killed process of this machine
-            try:
-                os.kill(int(stale.name.rsplit("-", 2)[-2]), 0)
-            except ProcessLookupError:
-                with contextlib.suppress(OSError):
-                    stale.unlink()
-            except (ValueError, OSError):
-                pass  # not ours to judge: its writer may still run
+        remove_stale_temporaries(self.path)  # left by killed processes of this machine
 
     def get(self, key: str):
         entry = self.path / f"{key}-cache"
@@ -86,7 +77,7 @@ class _RepairingCache(CacheInterface):
             return
         tmp = None
         try:
-            fd, tmp = tempfile.mkstemp(dir=self.path, prefix=f".{key}-cache.jaxgaze-tmp-{_HOST}-{os.getpid()}-")
+            fd, tmp = tempfile.mkstemp(dir=self.path, prefix=temporary_prefix(f"{key}-cache"))
             with os.fdopen(fd, "wb") as handle:
                 handle.write(value)
             os.replace(tmp, self.path / f"{key}-cache")

@@ -15,15 +15,14 @@ import csv
 import decimal
 import math
 import os
-import re
 import shutil
-import socket
 import stat
 import tempfile
 import threading
 import warnings
-import zlib
 from typing import NamedTuple, Optional
+
+from jaxgaze._temporary import remove_stale_temporaries, temporary_prefix
 
 __all__ = [
     "is_number",
@@ -147,39 +146,7 @@ def read_lines(path, error: type[InputFileError] = InputFileError, what: str = "
     return read_text(path, error, what).splitlines()
 
 
-#: Temporary files of the writers: ``.NAME.jaxgaze-tmp-HOST-PID-RANDOM.EXT`` beside ``NAME`` (HOST: a hash
-#: of the machine's name, PID: the writing process), so that litter of a killed process is recognised.
-TEMPORARY_MARK = ".jaxgaze-tmp-"
-_HOST = format(zlib.crc32(socket.gethostname().encode("utf-8", "replace")), "08x")
 _TRANSACTIONS = threading.local()
-
-
-def _process_is_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError, ValueError):
-        return True  # another user's process, or not a process id we can ask about: leave its files
-    return True
-
-
-def remove_stale_temporaries(path) -> list:
-    """Delete the temporary files that a killed writer of ``path`` left beside it (its process,
-    on this machine, is gone); returns their paths. SIGKILL leaves them: no process can clean
-    up after being killed, so the next writer of the same file does."""
-    target = os.path.abspath(os.fspath(path))
-    directory, name = os.path.split(target)
-    pattern = re.compile(re.escape(f".{name}{TEMPORARY_MARK}{_HOST}-") + r"(\d+)-")
-    removed = []
-    with contextlib.suppress(OSError):
-        for entry in os.listdir(directory):
-            match = pattern.match(entry)
-            if match and not _process_is_alive(int(match[1])):
-                with contextlib.suppress(OSError):
-                    os.unlink(os.path.join(directory, entry))
-                    removed.append(os.path.join(directory, entry))
-    return removed
 
 
 @contextlib.contextmanager
@@ -231,7 +198,7 @@ def replace_with_the_others(tmp, path) -> bool:
 def atomic_path(path):
     """Yield a temporary path next to ``path`` and ``os.replace`` it onto ``path`` only on success.
 
-    The temporary file (``.NAME.jaxgaze-tmp-HOST-PID-RANDOM.EXT``, :data:`TEMPORARY_MARK`) keeps
+    The temporary file (``.NAME.jaxgaze-tmp-HOST-PID-RANDOM.EXT``, :mod:`jaxgaze._temporary`) keeps
     ``path``'s extension (writers such as OpenCV's pick the format from it) and gets the
     permissions an existing ``path`` has (else the umask's). On any failure it is deleted and an
     existing ``path`` is left untouched, so no half-written output is ever seen. Inside
@@ -242,11 +209,11 @@ def atomic_path(path):
     """
     target = os.path.abspath(os.fspath(path))
     name = os.path.basename(target)
-    remove_stale_temporaries(target)
+    remove_stale_temporaries(os.path.dirname(target), os.path.basename(target))
     with atomic_outputs():
         try:
             fd, tmp = tempfile.mkstemp(dir=os.path.dirname(target), suffix=os.path.splitext(name)[1],
-                                       prefix=f".{name}{TEMPORARY_MARK}{_HOST}-{os.getpid()}-")
+                                       prefix=temporary_prefix(name))
         except OSError as error:
             if error.errno is not None and error.filename in (None, os.path.dirname(target)):
                 error.filename = os.fspath(path)
