@@ -143,9 +143,9 @@ def sklearn_kernel(start=None):
 
 def our_data_driven_start(X, y):
     """The first starting point of ``gp.fit`` (here from the statistics of all data)."""
-    from jaxgaze.gp.exact import _data_stats
+    from jaxgaze.gp.kernels import data_stats
 
-    stats = _data_stats(np.asarray(X, np.float64), np.asarray(y, np.float64))
+    stats = data_stats(np.asarray(X, np.float64), np.asarray(y, np.float64))
     return our_kernel()._initialise(stats, stats.y_var)
 
 

@@ -22,6 +22,7 @@ import jax
 import numpy as np
 
 from jaxgaze.joint import fit_joint, joint_data
+from jaxgaze.results import succeeded
 from jaxgaze.simulate import simulate_conversation
 
 
@@ -35,14 +36,15 @@ def _run(label, scenes, **options):
     for n, scene in enumerate(scenes):
         data = _data(scene)
         start = time.perf_counter()
-        post = fit_joint(data, jax.random.key(n), **options)
+        post = fit_joint(data, key=jax.random.key(n), **options)
         seconds = time.perf_counter() - start
         error = np.median(np.degrees(np.linalg.norm(post.bias - scene.bias, axis=-1)))
-        steps = post.idata.sample_stats["n_steps"].values.mean() if "n_steps" in post.idata.get("sample_stats", {}) \
+        idata = post.sampler.idata
+        steps = idata.sample_stats["n_steps"].values.mean() if "n_steps" in idata.get("sample_stats", {}) \
             else float("nan")
-        rows.append((seconds, error, post.succeeded, steps))
+        rows.append((seconds, error, succeeded(post), steps))
         print(f"{label}, call {n + 1}: {seconds:.1f} s, median bias error {error:.2f}°, "
-              f"succeeded {post.succeeded}, mean leapfrog steps {steps:.1f}", flush=True)
+              f"succeeded {succeeded(post)}, mean leapfrog steps {steps:.1f}", flush=True)
     return rows
 
 

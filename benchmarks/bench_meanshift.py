@@ -3,7 +3,7 @@
 The figure of merit is *pair-iterations per second*: seeds × rays × iterations
 divided by wall time. Both implementations run the same equations (Park et al.
 2012, eq. 5–6; see ``/work/shared/METHODS.md`` §1 and
-``jaxgaze.concurrence._meanshift_step``) in float32 in the same process.
+``jaxgaze.concurrence.field.meanshift_step``) in float32 in the same process.
 
 * **JAX** is the public ``jaxgaze.meanshift(rays, seeds, tol=0.0, max_iter=I)``
   under ``jax.jit``. ``tol=0`` means no step is ever "short enough", so every
@@ -143,9 +143,9 @@ def _jax_runner(iterations: int, max_stretch: int = 1):
 
 def _xla_runner(iterations: int, max_stretch: int = 1):
     """The unfused XLA loop (what ``meanshift`` runs on CPU), for comparison with the fused GPU kernel."""
-    from jaxgaze.concurrence.modes import _xla_meanshift, ray_projector
+    from jaxgaze.concurrence.field import ray_projector, xla_meanshift
 
-    return jax.jit(lambda rays, seeds: _xla_meanshift(ray_projector(rays), seeds, 0.0, iterations, max_stretch))
+    return jax.jit(lambda rays, seeds: xla_meanshift(ray_projector(rays), seeds, 0.0, iterations, max_stretch))
 
 
 def tune_fused(rays, seeds, iterations: int, max_stretch: int, shapes: str) -> None:
@@ -170,7 +170,7 @@ def tune_fused(rays, seeds, iterations: int, max_stretch: int, shapes: str) -> N
 
 
 def tune_one(shape: str, size: tuple[int, int], iterations: int, max_stretch: int) -> None:
-    from jaxgaze.concurrence.modes import ray_projector
+    from jaxgaze.concurrence.field import ray_projector
     from jaxgaze.concurrence.meanshift_pallas import fused_meanshift
 
     block_seeds, block_rays, warps = (int(v) for v in shape.split("x")[:3])

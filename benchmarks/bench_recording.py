@@ -61,7 +61,7 @@ import numpy as np
 
 from jaxgaze import GazeRays, enable_compilation_cache
 from jaxgaze.concurrence import ConcurrenceStream, find_concurrences_over_frames, track_concurrences
-from jaxgaze.concurrence.modes import LANE_FRAMES, _batch_plan
+from jaxgaze.concurrence.recording import LANE_FRAMES, batch_plan
 from jaxgaze.io.rays import RayRecording, write_rays_csv
 from jaxgaze.simulate import simulate_scene
 
@@ -279,7 +279,7 @@ def long_meeting(args, compile_s, table):
 def batch_paths(args, rays, today, table):
     """Cold, warm and today's on the same recording: ``{name: (seconds, result, programs)}``."""
     _say(f"\n## batch: {args.frames:,} frames, best of {args.repeats}")
-    lanes, batch = -(-args.frames // LANE_FRAMES), _batch_plan(rays.num_rays, rays.num_rays // 2)[0]
+    lanes, batch = -(-args.frames // LANE_FRAMES), batch_plan(rays.num_rays, rays.num_rays // 2)[0]
     calls = -(-lanes // batch)
     _say(f"  warm start: {lanes} lanes of {LANE_FRAMES} frames in {calls} call(s) of {batch} lanes "
          f"({100 * (1 - lanes / (calls * batch)):.0f} % of the lane work is padding); cold: {batch} frames a call")
@@ -321,7 +321,7 @@ def online(args, rays, batch, compile_s, table):
     if batch is None:  # the batch part did not run: its answers, untimed
         batch = {"warm": find_concurrences_over_frames(rays, warm_start=True), "cold": find_concurrences_over_frames(rays,
                                                                                                    warm_start=False)}
-    head = {name: type(found)(*(None if a is None else np.asarray(a)[:args.stream_frames] for a in found))
+    head = {name: jax.tree_util.tree_map(lambda a: np.asarray(a)[:args.stream_frames], found)
             for name, found in batch.items() if name in ("warm", "cold")}
     warm_same, warm_close, _ = agreement(streamed.concurrences, head["warm"])
     cold_same, cold_close, _ = agreement(streamed.concurrences, head["cold"])

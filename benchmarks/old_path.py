@@ -4,12 +4,13 @@ Kept for ``hang_repro.py`` and ``bench_long_recording.py`` only. On XLA:CPU its 
 LAPACK calls are large enough to deadlock (docs/runtime.md).
 """
 
-from jaxgaze.concurrence import ConcurrenceOptions, modes
+from jaxgaze.concurrence import ConcurrenceOptions
+from jaxgaze.concurrence.recording import prepare, search_frames
 
 
 def compile_old_path(rays, options=ConcurrenceOptions()):
     """``run()`` of the compiled single-vmap program over ``rays`` with ``options``."""
-    depths, box, static = modes._prepare(rays, options)
+    depths, box, static = prepare(rays, options)
     static["modes_per_batch"] = static["max_modes"]  # every mode in one batch, as before
-    program = modes._over_frames_jit.lower(rays, depths, box, **static).compile()
+    program = search_frames.lower(rays, depths, box, **static).compile()
     return lambda: program(rays, depths, box)

@@ -18,7 +18,7 @@ import pathlib
 import jax
 import numpy as np
 
-from jaxgaze.io.openface import OPENFACE_COLUMNS, openface_pose_and_gaze
+from jaxgaze.io.tools.openface import OPENFACE_COLUMNS, openface_pose_and_gaze
 from jaxgaze.io.poses import write_colmap_images, write_pose_csv
 from jaxgaze.io.rays import RayRecording, write_rays_csv
 from jaxgaze.poses import CameraPoses, matrices_to_quaternions
@@ -153,9 +153,9 @@ def convert(directory: pathlib.Path) -> dict:
     (10 frames) seen by a fixed camera 6 m in front of the group (``camera.csv``) as Gaze360 and OpenFace 2
     multi-face CSVs, and one person's (``p03``, ann) Pupil Core export, her scene camera on her head facing
     where she looks, with its poses (``ann_scene_camera.csv``)."""
-    from jaxgaze.io.gaze360 import write_gaze360
-    from jaxgaze.io.openface import write_openface_rays
-    from jaxgaze.io.pupil import write_pupil
+    from jaxgaze.io.tools.gaze360 import write_gaze360
+    from jaxgaze.io.tools.openface import write_openface_rays
+    from jaxgaze.io.tools.pupil import write_pupil
 
     scene = simulate_scene(jax.random.key(0), "meeting", num_frames=30)
     frames = np.arange(0, scene.num_frames, 3)

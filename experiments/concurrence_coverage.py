@@ -1,7 +1,7 @@
 """Coverage of the concurrence covariances when the bandwidth is right, too small or too large.
 
-Scenes come from a generator written here, independent of ``jaxgaze.simulate``
-(the same one as ``tests/concurrence/test_covariance_coverage.py``): 1–3 groups
+Scenes come from :mod:`jaxgaze.simulate.coverage`, a generator independent of the other
+simulators (the one ``tests/concurrence/test_covariance_coverage.py`` uses): 1–3 groups
 of 4–8 people, each 1.5–4 m from the group's target, every gaze direction turned
 away from the target by a rotation whose angle components perpendicular to it
 are ``N(0, σ²)``. Each cell of the grid (noise ``σ`` × the bandwidth the user
@@ -23,62 +23,13 @@ from __future__ import annotations
 import argparse
 import time
 
+import jax
 import numpy as np
 from scipy.stats import chi2
 
 import jaxgaze as jg
 from jaxgaze.concurrence.metrics import coverage, localisation_errors
-
-MAX_PEOPLE = 24  # 3 groups of at most 8: one compiled program for the whole grid
-
-
-def turn(rng, directions, sigma):
-    """Rotate unit ``directions`` (n, 3) by rotation vectors ``a u1 + b u2`` ⟂ each one, ``a, b ~ N(0, σ²)``."""
-    helper = np.where(np.abs(directions[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    u1 = np.cross(directions, helper)
-    u1 /= np.linalg.norm(u1, axis=1, keepdims=True)
-    u2 = np.cross(directions, u1)
-    a, b = rng.normal(0.0, sigma, (2, len(directions), 1))
-    axis_angle = a * u1 + b * u2
-    angle = np.linalg.norm(axis_angle, axis=1, keepdims=True)
-    axis = axis_angle / np.maximum(angle, 1e-300)
-    return np.cos(angle) * directions + np.sin(angle) * np.cross(axis, directions)
-
-
-def scene(rng, sigma):
-    """Eyes (n, 3), noisy unit directions (n, 3) and targets (g, 3) of one random scene."""
-    groups = int(rng.integers(1, 4))
-    targets = []
-    while len(targets) < groups:  # targets at least 2.5 m apart on the floor plan
-        t = np.array([rng.uniform(-4, 4), rng.uniform(-4, 4), rng.uniform(0.6, 1.6)])
-        if all(np.linalg.norm(t[:2] - s[:2]) > 2.5 for s in targets):
-            targets.append(t)
-    eyes, looks_at = [], []
-    for target in targets:
-        n = int(rng.integers(4, 9))
-        distance = rng.uniform(1.5, 4.0, n)
-        azimuth = rng.uniform(0, 2 * np.pi, n)
-        height = rng.uniform(1.5, 1.8, n)
-        across = np.sqrt(distance**2 - (height - target[2]) ** 2)
-        eyes.append(np.stack([target[0] + across * np.cos(azimuth), target[1] + across * np.sin(azimuth), height], 1))
-        looks_at.append(np.broadcast_to(target, (n, 3)))
-    eyes, looks_at = np.concatenate(eyes), np.concatenate(looks_at)
-    exact = (looks_at - eyes) / np.linalg.norm(looks_at - eyes, axis=1, keepdims=True)
-    return eyes, turn(rng, exact, sigma), np.array(targets)
-
-
-def frames(rng, sigma, count):
-    """``count`` scenes padded to MAX_PEOPLE rays: origins, directions, mask, targets, target mask."""
-    origins = np.zeros((count, MAX_PEOPLE, 3))
-    directions = np.tile([1.0, 0.0, 0.0], (count, MAX_PEOPLE, 1))
-    mask = np.zeros((count, MAX_PEOPLE), bool)
-    targets = np.zeros((count, 3, 3))
-    target_mask = np.zeros((count, 3), bool)
-    for t in range(count):
-        eyes, dirs, tgt = scene(rng, sigma)
-        origins[t, : len(eyes)], directions[t, : len(eyes)], mask[t, : len(eyes)] = eyes, dirs, True
-        targets[t, : len(tgt)], target_mask[t, : len(tgt)] = tgt, True
-    return origins, directions, mask, targets, target_mask
+from jaxgaze.simulate.coverage import group_frames
 
 
 def laplace_only(found, origins, directions, bandwidth):
@@ -108,7 +59,7 @@ def main(argv=None) -> dict:
 
     rng = np.random.default_rng(args.seed)
     cells = [(sigma, factor) for sigma in args.noises for factor in args.factors]
-    data = [frames(rng, sigma, args.frames) for sigma, _ in cells]
+    data = [group_frames(rng, sigma, args.frames) for sigma, _ in cells]
     bandwidth = np.concatenate([np.full(d[2].shape, sigma * factor) for d, (sigma, factor) in zip(data, cells)])
     rays = jg.GazeRays(np.concatenate([d[0] for d in data]).astype(np.float32),
                        np.concatenate([d[1] for d in data]).astype(np.float32),
@@ -131,7 +82,7 @@ def main(argv=None) -> dict:
         span = np.arange(first, first + len(origins))
         first += len(origins)
         right = np.asarray(found.count)[span] == target_mask.sum(1)
-        part = found._replace(**{name: np.asarray(value)[span[right]] for name, value in found._asdict().items()})
+        part = jax.tree_util.tree_map(lambda a: np.asarray(a)[span[right]], found)
         truth, truth_mask = targets[right], target_mask[right]
         errors = localisation_errors(part, truth, truth_mask)
         share = coverage(part, truth, truth_mask, level=args.level)

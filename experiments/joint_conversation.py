@@ -33,11 +33,13 @@ import time
 import jax
 import numpy as np
 
-from jaxgaze.bias import gaze_angles_to_direction, gaze_offsets, head_to_world, target_direction_head
+from jaxgaze.bias import gaze_offsets, target_direction_head
+from jaxgaze.bias.looking import gaze_angles_to_direction, head_to_world
 from jaxgaze.concurrence import find_concurrences_over_frames
-from jaxgaze.joint import (DEFAULT_CONCURRENCE_OPTIONS, JointStart, corrected_rays, expected_calibration_error,
-                           fit_joint, initial_concurrences, joint_data, nearest_target, ray_intersection,
-                           speaker_rule_bias)
+from jaxgaze.joint import (JointStart, expected_calibration_error, fit_joint, joint_data, nearest_target,
+                           ray_intersection)
+from jaxgaze.joint.init import DEFAULT_CONCURRENCE_OPTIONS, corrected_rays, initial_concurrences, speaker_rule_bias
+from jaxgaze.results import succeeded
 from jaxgaze.simulate import simulate_conversations
 
 CHI2_3_90 = 6.251388631170325  # 90% quantile of χ² with 3 degrees of freedom
@@ -137,7 +139,7 @@ def evaluate_scene(scene, key, warmup, draws):
     stride = max(1, data.num_frames // 300)
     centres, support = initial_concurrences(data, rays, stride=stride)
     start = JointStart(spk_bias, used, centres, support)
-    post = fit_joint(data, k_fit, num_warmup=warmup, num_samples=draws, start=start)
+    post = fit_joint(data, key=k_fit, num_warmup=warmup, num_samples=draws, start=start)
     seconds = time.time() - t0
     slots = post.concurrence_locations()
     K = post.num_concurrences
@@ -167,7 +169,7 @@ def evaluate_scene(scene, key, warmup, draws):
                      "confidence": conf[present].tolist(), "correct": correct[present].tolist(),
                      "bias_cover": ((scene.bias >= bias_iv[..., 0]) & (scene.bias <= bias_iv[..., 1])).ravel().tolist(),
                      "h_cover": ((scene.cone_width >= h_iv[..., 0]) & (scene.cone_width <= h_iv[..., 1])).tolist(),
-                     "seconds": seconds, "result": str(post.succeeded), "diagnostics": post.diagnostics,
+                     "seconds": seconds, "result": str(succeeded(post)), "diagnostics": post.sampler.diagnostics._asdict(),
                      "num_concurrences": K}
 
     # 4: oracle

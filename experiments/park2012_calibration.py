@@ -60,13 +60,13 @@ def main() -> None:
         y, key=jax.random.key(args.seed + 2), num_warmup=args.samples, num_samples=args.samples,
         init_eye_centers=np.where(ok[:, None], np.asarray(point.eye_center), 0.0),
         init_directions=np.where(ok[:, None], np.asarray(point.direction), [1.0, 0.0, 0.0]),
-        progress_bar=True,
+        progress=True,
     )
     ransac = errors(point.eye_center, point.direction, true_eye, true_direction)
     ransac = tuple(np.where(ok, e, np.nan) for e in ransac)
     bayes = errors([p.eye_center for p in posteriors], [p.direction for p in posteriors], true_eye, true_direction)
     inside = np.array([p.contains(e, d, level=0.9) for p, e, d in zip(posteriors, true_eye, true_direction)])
-    min_ess = min(float(p.summary["ess_bulk"].min()) for p in posteriors)
+    min_ess = min(float(p.sampler.summary["ess_bulk"].min()) for p in posteriors)
 
     print(f"Park et al. (2012) Sec. 3.2 calibration — {args.wearers} simulated wearers, {args.frames} frames each")
     print(f"  eye-in-head h = {args.eye_in_head} rad, outliers {100 * args.outliers:.0f} %, pose noise 0.005 rad / 1 cm, "

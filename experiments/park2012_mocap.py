@@ -9,7 +9,7 @@ per frame with ``find_concurrences_over_frames`` and matched to the markers
 by the Hungarian algorithm. Two regions are checked against the markers: the
 ``--level`` region of each location's covariance (its uncertainty), and the
 paper's ``f ≥ 0.8 f(mode)`` region, which is a level set of the field and not a
-confidence region for the location (see ``jaxgaze.concurrence.modes``).
+confidence region for the location (see ``jaxgaze.concurrence.frame``).
 
 Paper: mean error 10.1 cm, standard deviation 5.73 cm.
 

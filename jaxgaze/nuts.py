@@ -20,6 +20,7 @@ import functools
 import logging
 import math
 import warnings
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -28,11 +29,12 @@ from jax.flatten_util import ravel_pytree
 from numpyro.infer.hmc import hmc
 from numpyro.infer.util import constrain_fn, potential_energy
 
+from jaxgaze import _progress
 from jaxgaze.results import RESULTS
 
-__all__ = ["sample_nuts", "laplace_inverse_mass", "mixing_diagnostics", "mixing_result", "posterior_summary",
-           "split_chains", "set_units", "quiet_single_chain", "MAX_RHAT", "MIN_ESS", "MAX_DIVERGENT_SHARE",
-           "MIN_ACCEPTANCE", "HDI_PROB"]
+__all__ = ["sample_nuts", "laplace_inverse_mass", "MixingDiagnostics", "SamplerReport", "sampler_report",
+           "mixing_diagnostics", "mixing_result", "posterior_summary", "split_chains", "set_units",
+           "quiet_single_chain", "MAX_RHAT", "MIN_ESS", "MAX_DIVERGENT_SHARE", "MIN_ACCEPTANCE", "HDI_PROB"]
 
 #: Diagnostics every NUTS posterior must pass (:func:`mixing_result`): split r-hat at most this …
 MAX_RHAT = 1.05
@@ -48,13 +50,6 @@ HDI_PROB = 0.9
 
 #: The progress bar advances every this many iterations.
 REPORT_EVERY = 25
-_progress = None  # (tqdm bar, iterations done before this chain) of the fit that is running
-
-
-def _report(iteration):
-    if _progress is not None:
-        bar, base = _progress
-        bar.update(max(0, base + int(np.max(iteration)) - bar.n))
 
 
 def _one_chain(model, key, model_args, init_params, inverse_mass_matrix, num_warmup, num_samples, dense_mass,
@@ -69,7 +64,7 @@ def _one_chain(model, key, model_args, init_params, inverse_mass_matrix, num_war
 
     def step(s, i):
         s = sample_kernel(s, model_args=model_args)
-        jax.lax.cond((i + 1) % REPORT_EVERY == 0, lambda: jax.debug.callback(_report, i + 1), lambda: None)
+        jax.lax.cond((i + 1) % REPORT_EVERY == 0, lambda: jax.debug.callback(_progress.reach, i + 1), lambda: None)
         stats = {"diverging": s.diverging, "acceptance_rate": s.accept_prob, "n_steps": s.num_steps,
                  "lp": -s.potential_energy}
         return s, (s.z, stats)
@@ -100,7 +95,7 @@ def sample_nuts(
     dense_mass: bool = False,
     inverse_mass_matrix=None,
     target_accept_prob: float = 0.8,
-    progress_bar: bool = False,
+    progress: bool = False,
     description: str = "NUTS",
 ) -> tuple[dict, dict]:
     """Draw from ``B`` independent posteriors of one numpyro ``model`` with NUTS.
@@ -126,7 +121,7 @@ def sample_nuts(
             step size adapts. A good one, such as the inverse Hessian of the potential
             at the mode, saves the warm-up's early windows, which with the identity take
             hundreds of leapfrog steps per draw on a badly scaled posterior.
-        progress_bar: show a tqdm bar over all iterations of all chains.
+        progress: show a tqdm bar over all iterations of all chains.
 
     Returns:
         ``(values, stats)``: dicts of arrays ``(B, num_samples, ...)``; ``values``
@@ -134,7 +129,6 @@ def sample_nuts(
         ``stats`` the sampler statistics (``diverging``, ``acceptance_rate``,
         ``n_steps``, ``lp``).
     """
-    global _progress
     sizes = {np.shape(a)[0] for a in jax.tree_util.tree_leaves((model_args, init_params))}
     if len(sizes) != 1:
         raise ValueError(f"model_args and init_params need one common leading batch axis, got sizes {sorted(sizes)}")
@@ -147,21 +141,16 @@ def sample_nuts(
             raise ValueError(f"inverse_mass_matrix must have shape {wanted}, got {inverse_mass_matrix.shape}")
     keys = jax.random.split(key, batch)
     per_chain = int(num_warmup) + int(num_samples)
-    from tqdm.auto import tqdm
-
     runs = []
-    with tqdm(total=batch * per_chain, desc=description, disable=not progress_bar, leave=False) as bar:
-        try:
-            for b in range(batch):
-                _progress = (bar, b * per_chain) if progress_bar else None
-                pick = functools.partial(jax.tree_util.tree_map, lambda a: a[b])
-                mass = None if inverse_mass_matrix is None else inverse_mass_matrix[b]
-                runs.append(_single(model, keys[b], pick(model_args), pick(init_params), mass, int(num_warmup),
-                                    int(num_samples), bool(dense_mass), float(target_accept_prob)))
-            runs = jax.block_until_ready(runs)
-            jax.effects_barrier()
-        finally:
-            _progress = None
+    with _progress.progress_bar(progress, total=batch * per_chain, desc=description):
+        for b in range(batch):
+            _progress.set_offset(b * per_chain)
+            pick = functools.partial(jax.tree_util.tree_map, lambda a: a[b])
+            mass = None if inverse_mass_matrix is None else inverse_mass_matrix[b]
+            runs.append(_single(model, keys[b], pick(model_args), pick(init_params), mass, int(num_warmup),
+                                int(num_samples), bool(dense_mass), float(target_accept_prob)))
+        runs = jax.block_until_ready(runs)
+        jax.effects_barrier()
     return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *runs)
 
 
@@ -183,6 +172,53 @@ def laplace_inverse_mass(potential_fn, params: dict, min_curvature: float):
     curvature, axes = jnp.linalg.eigh(0.5 * (hessian + hessian.T))
     inverse = (axes / jnp.maximum(jnp.abs(curvature), min_curvature)) @ axes.T
     return jnp.where(jnp.all(jnp.isfinite(hessian)), inverse, jnp.eye(flat.shape[0], dtype=flat.dtype))
+
+
+class MixingDiagnostics(NamedTuple):
+    """How a NUTS run mixed (:func:`mixing_diagnostics`); :func:`mixing_result` judges it.
+
+    ``max_rhat``: the largest split r-hat (NaN when a variable never moved); ``min_ess_bulk``,
+    ``min_ess_tail``: the smallest bulk and tail ESS; ``divergences`` of ``draws`` kept transitions
+    (all chains); ``chains``: the sampler's chains; ``acceptance_rate``: the mean acceptance probability.
+    """
+
+    max_rhat: float
+    min_ess_bulk: float
+    min_ess_tail: float
+    divergences: int
+    draws: int
+    chains: int
+    acceptance_rate: float
+
+
+class SamplerReport(NamedTuple):
+    """How one NUTS posterior went, the same in every family (bias, GP, calibration, joint).
+
+    Attributes:
+        idata: the draws as an ``arviz.InferenceData`` (``posterior``, ``sample_stats``).
+        result: :class:`~jaxgaze.results.RESULTS` of the sampler: ``successful``, or ``not_mixed``
+            when :attr:`diagnostics` fail :func:`mixing_result`.
+        diagnostics: :class:`MixingDiagnostics` (split r-hat, bulk and tail ESS, divergences, acceptance).
+        summary: :func:`posterior_summary` of the main parameters (a ``pandas.DataFrame``: mean, sd,
+            90% HDI, ESS, r-hat).
+    """
+
+    idata: Any
+    result: RESULTS
+    diagnostics: MixingDiagnostics
+    summary: Any
+
+    @property
+    def succeeded(self) -> bool:
+        """Whether the sampler mixed (``result`` is ``successful``)."""
+        return bool(np.all(np.asarray(self.result == RESULTS.successful)))
+
+
+def sampler_report(idata, var_names) -> SamplerReport:
+    """The :class:`SamplerReport` of ``idata`` judged on ``var_names``: :func:`mixing_diagnostics`,
+    :func:`mixing_result` and :func:`posterior_summary` in one call."""
+    diagnostics = mixing_diagnostics(idata, var_names)
+    return SamplerReport(idata, mixing_result(diagnostics), diagnostics, posterior_summary(idata, var_names))
 
 
 #: Attribute of a posterior group laid out by :func:`split_chains`: the number of the sampler's chains.
@@ -271,7 +307,7 @@ def _checked(idata, var_names):
     return posterior
 
 
-def mixing_diagnostics(idata, var_names) -> dict:
+def mixing_diagnostics(idata, var_names) -> MixingDiagnostics:
     """Whether a NUTS run mixed: split r-hat, bulk and tail ESS (arviz), divergences and acceptance.
 
     ``idata`` is an ``arviz.InferenceData`` with ``posterior`` ``(chain, draw, …)`` and
@@ -281,28 +317,26 @@ def mixing_diagnostics(idata, var_names) -> dict:
     arviz gives the same on a file written in that layout; the ESS is arviz's of the chains
     as laid out (the halves, for an ``idata`` laid out by :func:`split_chains`). A
     variable that never moved within a chain has no ESS (0) and a NaN r-hat, which
-    fail the checks. Returns ``max_rhat``, ``min_ess_bulk``, ``min_ess_tail``,
-    ``divergences``, ``draws`` (all chains), ``chains`` and ``acceptance_rate`` (the
-    mean); :func:`mixing_result` judges them.
+    fail the checks. Returns a :class:`MixingDiagnostics`; :func:`mixing_result` judges it.
     """
     posterior = _checked(idata, var_names)
     table = _diagnostic_table(posterior)
     rhat = table["r_hat"].to_numpy()
     stats = idata.sample_stats
     diverging = np.asarray(stats["diverging"].values, bool)
-    return {"max_rhat": math.nan if np.isnan(rhat).any() else float(rhat.max()),
-            "min_ess_bulk": float(table["ess_bulk"].min()), "min_ess_tail": float(table["ess_tail"].min()),
-            "divergences": int(diverging.sum()), "draws": int(diverging.size),
-            "chains": int(posterior.attrs.get(SAMPLER_CHAINS, posterior.sizes["chain"])),
-            "acceptance_rate": float(np.mean(stats["acceptance_rate"].values))}
+    return MixingDiagnostics(
+        max_rhat=math.nan if np.isnan(rhat).any() else float(rhat.max()),
+        min_ess_bulk=float(table["ess_bulk"].min()), min_ess_tail=float(table["ess_tail"].min()),
+        divergences=int(diverging.sum()), draws=int(diverging.size),
+        chains=int(posterior.attrs.get(SAMPLER_CHAINS, posterior.sizes["chain"])),
+        acceptance_rate=float(np.mean(stats["acceptance_rate"].values)))
 
 
-def mixing_result(diagnostics: dict) -> RESULTS:
+def mixing_result(diagnostics: MixingDiagnostics) -> RESULTS:
     """``RESULTS.not_mixed`` unless every check of :func:`mixing_diagnostics` passes (NaN fails)."""
-    mixed = (diagnostics["max_rhat"] <= MAX_RHAT and diagnostics["min_ess_bulk"] >= MIN_ESS
-             and diagnostics["min_ess_tail"] >= MIN_ESS
-             and diagnostics["divergences"] <= MAX_DIVERGENT_SHARE * diagnostics["draws"]
-             and diagnostics["acceptance_rate"] >= MIN_ACCEPTANCE)
+    d = diagnostics
+    mixed = (d.max_rhat <= MAX_RHAT and d.min_ess_bulk >= MIN_ESS and d.min_ess_tail >= MIN_ESS
+             and d.divergences <= MAX_DIVERGENT_SHARE * d.draws and d.acceptance_rate >= MIN_ACCEPTANCE)
     return RESULTS.successful if mixed else RESULTS.not_mixed
 
 

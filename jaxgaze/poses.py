@@ -23,11 +23,9 @@ import math
 import warnings
 from typing import NamedTuple, Optional
 
-import jax
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from jaxgaze._checks import bucket_size
-from jaxgaze.geometry import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from jaxgaze.rays import UnitWarning
 
 __all__ = [
@@ -128,32 +126,19 @@ def as_camera_poses(poses: CameraPoses, name: str) -> CameraPoses:
     return CameraPoses(R, C, f, ts)
 
 
-# One compiled call per padded size (powers of two), instead of one eager op
-# at a time for every new number of frames.
-_quat_to_matrix_jit = jax.jit(quaternion_to_rotation_matrix)
-_matrix_to_quat_jit = jax.jit(jax.vmap(rotation_matrix_to_quaternion))
-
-
 def quaternions_to_matrices(q: np.ndarray) -> np.ndarray:
-    """``(T, 4)`` unit quaternions (w, x, y, z) → ``(T, 3, 3)`` float64 rotation matrices.
-
-    :func:`jaxgaze.geometry.quaternion_to_rotation_matrix` in float64, compiled once
-    per padded length (powers of two) rather than once per file length.
-    """
-    n = q.shape[0]
-    padded = np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (bucket_size(n), 1))
-    padded[:n] = q
-    with jax.enable_x64(True):
-        return np.asarray(_quat_to_matrix_jit(padded), dtype=np.float64)[:n]
+    """``(T, 4)`` unit quaternions (w, x, y, z) → ``(T, 3, 3)`` float64 rotation matrices
+    (``scipy.spatial.transform.Rotation``, which normalises ``q`` first)."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 4)
+    return Rotation.from_quat(q, scalar_first=True).as_matrix()
 
 
 def matrices_to_quaternions(R: np.ndarray) -> np.ndarray:
-    """``(T, 3, 3)`` rotation matrices → ``(T, 4)`` quaternions (w, x, y, z) with ``w ≥ 0``, float64."""
-    n = R.shape[0]
-    padded = np.tile(np.eye(3), (bucket_size(n), 1, 1))
-    padded[:n] = R
-    with jax.enable_x64(True):
-        return np.asarray(_matrix_to_quat_jit(padded), dtype=np.float64)[:n]
+    """``(T, 3, 3)`` rotation matrices → ``(T, 4)`` quaternions (w, x, y, z) with ``w ≥ 0``, float64
+    (``scipy.spatial.transform.Rotation``)."""
+    R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
+    q = Rotation.from_matrix(R).as_quat(scalar_first=True)
+    return np.where(q[:, :1] < 0, -q, q)
 
 
 # ---------------------------------------------------------------------------

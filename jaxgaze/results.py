@@ -15,15 +15,29 @@ runtime error. ``throw=False`` never raises on a failed fit: the code is returne
 in the solution, with NaN-free placeholder values where the fit documents them.
 Bad *arguments* (shapes, types, options) raise ``ValueError``/``TypeError``
 either way. Both rules are :func:`throw_if_failed`.
+
+**One default: ``throw=False``**, in every fit. Our fits are batched (one calibration per camera,
+one bias per person, one GP per output, vmapped) and many are posteriors: one failed item must not
+discard the others, and draws that did not mix are still worth looking at. The code is always in the
+result and :func:`succeeded` reads it, from every fit alike; the command line turns a failure into an
+error line. Pass ``throw=True`` to raise instead: the :class:`FitError` carries what was computed
+(``error.fit``), so raising throws nothing away.
+
+**One question, one function**: :func:`succeeded` (``fit.result == RESULTS.successful``), for every
+fit and posterior (its ``result`` field), per item when batched, per concurrence for
+:class:`~jaxgaze.concurrence.Concurrences`.
 """
 
 from __future__ import annotations
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 
-__all__ = ["RESULTS", "FitError", "NAMES", "code", "name", "from_name", "throw_if_failed"]
+__all__ = ["RESULTS", "FitError", "NAMES", "code", "name", "from_name", "from_optimistix", "OPTIMISTIX",
+           "succeeded", "throw_if_failed"]
 
 
 class RESULTS(eqx.Enumeration):
@@ -71,6 +85,10 @@ class RESULTS(eqx.Enumeration):
         "allows: 0.3 m for a posterior mean, 1 m for a point estimate); check that positions are in metres and "
         "that the inputs belong together"
     )
+    lost = (
+        "the head tracker lost the head: the pose left the tracked range, or tracking had failed before, and no "
+        "face was found in the frame to start again; pose and translation are NaN until a later frame has a face"
+    )
 
 
 #: Member names in code order (``NAMES[i]`` is the member whose code is ``i``); these are
@@ -87,6 +105,7 @@ NAMES = (
     "collinear_through_camera",
     "not_mixed",
     "implausible",
+    "lost",
 )
 
 
@@ -95,12 +114,14 @@ class FitError(RuntimeError, ValueError):
 
     A ``RuntimeError`` (the solver failed at run time) and a ``ValueError`` (the
     data, not the call, is the cause: e.g. degenerate points of regard), so code
-    that catches either keeps working. ``result`` is the :class:`RESULTS` item.
+    that catches either keeps working. ``result`` is the :class:`RESULTS` item and ``fit`` what the
+    fit computed (its solution, posterior or estimate, as ``throw=False`` returns it), or ``None``.
     """
 
-    def __init__(self, message: str, result: RESULTS | None = None):
+    def __init__(self, message: str, result: RESULTS | None = None, fit=None):
         super().__init__(message)
         self.result = result
+        self.fit = fit
 
 
 def code(result: RESULTS):
@@ -126,13 +147,51 @@ def from_name(member: str) -> RESULTS:
     return getattr(RESULTS, member)
 
 
-def throw_if_failed(token, result: RESULTS, context: str):
+#: The one table from ``optimistix.RESULTS`` names to ours (:func:`from_optimistix`); every optimistix
+#: failure not listed is ``optimiser_failed``.
+OPTIMISTIX = {
+    "successful": "successful",
+    "max_steps_reached": "max_steps_reached",
+    "nonlinear_max_steps_reached": "max_steps_reached",
+    "nonfinite_input": "nonfinite",
+    "nonfinite": "nonfinite",
+}
+
+
+def from_optimistix(result: optx.RESULTS) -> RESULTS:
+    """Our :class:`RESULTS` item for an ``optimistix.RESULTS`` item, through the table :data:`OPTIMISTIX`
+    (any other optimistix failure is ``optimiser_failed``); batch axes kept, traceable under ``jit``/``vmap``."""
+    (theirs,) = jax.tree.leaves(result)
+    ours = jnp.full(jnp.shape(theirs), code(RESULTS.optimiser_failed))
+    for their_name, our_name in OPTIMISTIX.items():
+        (their_code,) = jax.tree.leaves(getattr(optx.RESULTS, their_name))
+        ours = jnp.where(theirs == their_code, code(getattr(RESULTS, our_name)), ours)
+    return jax.tree.unflatten(jax.tree.structure(RESULTS.successful), [ours])
+
+
+def succeeded(fit):
+    """Whether ``fit`` succeeded: ``fit.result == RESULTS.successful`` for any fit, posterior or
+    concurrence set with a ``result`` field (or a :class:`RESULTS` item itself). A Python ``bool``
+    for one concrete result; a bool array with the batch axes otherwise (per item of a vmapped fit,
+    per concurrence of :class:`~jaxgaze.concurrence.Concurrences`)."""
+    result = fit if isinstance(fit, RESULTS) else getattr(fit, "result", None)
+    if not isinstance(result, RESULTS):
+        raise TypeError(f"succeeded needs a fit with a jaxgaze.results.RESULTS `result`, got {type(fit).__name__}")
+    ok = result == RESULTS.successful
+    value = code(result)
+    if not isinstance(value, jax.core.Tracer) and np.ndim(value) == 0:
+        return bool(ok)
+    return ok
+
+
+def throw_if_failed(token, result: RESULTS, context: str, fit=None):
     """Apply ``throw=True``: raise unless ``result`` is ``successful``; returns ``token``.
 
     Concrete results raise :class:`FitError` with message ``"{context}: {RESULTS
     message}"`` (for a batch, that of the first failure). Traced results (under
     ``jit``/``vmap``) thread an ``equinox`` runtime error with the same message onto
-    the arrays of ``token``, which is returned to be used in their place.
+    the arrays of ``token``, which is returned to be used in their place. ``fit`` (default ``token``)
+    is what :attr:`FitError.fit` carries.
     """
     value = code(result)
     if isinstance(value, jax.core.Tracer):
@@ -143,7 +202,7 @@ def throw_if_failed(token, result: RESULTS, context: str):
     if failed.size:
         first = from_name(NAMES[int(values[failed[0]])])
         where = f" (item {int(failed[0])} of the batch)" if np.ndim(value) else ""
-        raise FitError(f"{context}{where}: {RESULTS[first]}", result)
+        raise FitError(f"{context}{where}: {RESULTS[first]}", result, token if fit is None else fit)
     return token
 
 

@@ -49,12 +49,13 @@ if len(sys.argv) > 3:  # one of several processes: join them before any computat
                                process_id=int(sys.argv[5]), initialization_timeout=120)
 
 import jaxgaze
+from jaxgaze.results import code
 
 saved = np.load(rays_file)
 rays = jaxgaze.GazeRays(saved["origins"], saved["directions"], saved["bandwidth"], saved["mask"])
 found = jaxgaze.find_concurrences_over_frames(rays)
 np.savez(out_file, devices=jax.local_device_count(), processes=jax.process_count(),
-         process=jax.process_index(), count=found.count, **found._asdict())
+         process=jax.process_index(), count=found.count, **found._replace(result=code(found.result))._asdict())
 """
 
 
@@ -196,7 +197,7 @@ for form in ("one", "four"):
         return state, losses
 
     infer._svi_run = spy
-    post = fit_joint(data, jax.random.key(2), method="svi", num_steps=num_steps, frames_per_step=64, num_samples=20,
+    post = fit_joint(data, key=jax.random.key(2), method="svi", num_steps=num_steps, frames_per_step=64, num_samples=20,
                      start=start)
     out[form + "_membership"] = post.membership
     out.update({form + "_draws_" + k: v for k, v in post.samples.items()})

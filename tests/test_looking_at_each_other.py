@@ -12,7 +12,7 @@ import pytest
 from scipy.stats import ncx2
 
 from jaxgaze import GazeRays, LookingAtEachOther, looking_at_each_other
-from jaxgaze.bias import gaze_angles_to_direction, head_to_world
+from jaxgaze.bias.looking import gaze_angles_to_direction, head_to_world
 from jaxgaze.cone import disc_probability
 from jaxgaze.geometry import angle_between
 from jaxgaze.joint import expected_calibration_error, joint_data, target_marginals

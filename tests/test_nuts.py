@@ -95,14 +95,14 @@ def test_mixing_checks_pass_independent_draws_and_fail_each_failure():
     good = rng.normal(size=(1, 1000, 2))
     d = mixing_diagnostics(_idata(good), ["x"])
     assert mixing_result(d) == RESULTS.successful
-    assert d["max_rhat"] < 1.01 and d["min_ess_bulk"] > 500 and d["chains"] == 1 and d["draws"] == 1000
+    assert d.max_rhat < 1.01 and d.min_ess_bulk > 500 and d.chains == 1 and d.draws == 1000
     # a single chain whose halves disagree: split r-hat exists for one chain, and it is large
     drifted = good + np.concatenate([np.zeros(500), np.full(500, 3.0)])[None, :, None]
-    assert mixing_diagnostics(_idata(drifted), ["x"])["max_rhat"] > 1.5
+    assert mixing_diagnostics(_idata(drifted), ["x"]).max_rhat > 1.5
     assert mixing_result(mixing_diagnostics(_idata(drifted), ["x"])) == RESULTS.not_mixed
     # a chain that never moved: no ESS, NaN r-hat, acceptance 0 (as a sampler stuck at its start)
     stuck = mixing_diagnostics(_idata(np.ones((1, 1000, 2)), acceptance=np.zeros((1, 1000))), ["x"])
-    assert stuck["min_ess_bulk"] == 0 and np.isnan(stuck["max_rhat"]) and stuck["acceptance_rate"] == 0
+    assert stuck.min_ess_bulk == 0 and np.isnan(stuck.max_rhat) and stuck.acceptance_rate == 0
     assert mixing_result(stuck) == RESULTS.not_mixed
     # too many divergences; too low an acceptance; too few effective draws
     diverging = np.zeros((1, 1000), bool)

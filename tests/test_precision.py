@@ -23,7 +23,7 @@ import pytest
 import jaxgaze as jg
 import jaxgaze.gp as gp
 from jaxgaze.bias import estimate_bias
-from jaxgaze.calibration import solve_cone_apex
+from jaxgaze.calibration.cone_fit import solve_cone_apex
 from jaxgaze.facial import generic_face, orientation_gee_cipolla, orientation_pnp, to_gaze_rays
 from jaxgaze.facial.orientation import head_orientation_gee_cipolla, head_pose_to_optical_rotation
 

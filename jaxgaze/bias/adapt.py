@@ -171,7 +171,7 @@ def adapt_bias(
     num_warmup: int = 500,
     num_samples: int = 500,
     max_silent_frames: int = 256,
-    progress_bar: bool = False,
+    progress: bool = False,
 ) -> BiasAdaptation:
     """Speaker-prior gaze bias adaptation of one person (Siegfried et al. 2017, Sec. 3–4).
 
@@ -272,7 +272,7 @@ def adapt_bias(
         if len(silent):
             extra["silent_offsets"] = np.asarray(gaze_offsets(jnp.asarray(g[silent]), jnp.asarray(u[silent])))
     estimate = estimate_bias(offsets, method, key=key_fit, num_warmup=num_warmup, num_samples=num_samples,
-                             progress_bar=progress_bar and method == "bayes", **extra)
+                             progress=progress and method == "bayes", **extra)
     bias = np.asarray(estimate.bias, dtype=np.float64)
     draws = None
     if method == "bayes":

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -33,11 +33,8 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from jaxgaze._checks import bucket_size
 from jaxgaze.geometry import rad_to_deg
-from jaxgaze.nuts import mixing_diagnostics, mixing_result, posterior_summary, quiet_single_chain, sample_nuts
+from jaxgaze.nuts import SamplerReport, quiet_single_chain, sample_nuts, sampler_report
 from jaxgaze.results import RESULTS, throw_if_failed
-
-if TYPE_CHECKING:  # arviz is slow to import: it is imported when a posterior is summarised
-    import arviz as az
 
 __all__ = [
     "BiasEstimate",
@@ -72,20 +69,20 @@ class BiasEstimate(NamedTuple):
             covariance of ``b`` (bayes). ``None`` when fewer than 2 frames enter the mean.
         responsibilities: ``(N,)`` posterior probability that each frame looks at the
             partner (bayes), else ``None``.
-        posterior: ``arviz.InferenceData`` (bayes), else ``None``.
+        sampler: the :class:`~jaxgaze.nuts.SamplerReport` of the NUTS run (bayes: ``idata``, the
+            sampler's ``result``, its mixing ``diagnostics`` and the ``summary`` table of the model's
+            parameters), else ``None`` (mean and LMedS sample nothing).
         samples: dict of posterior draws, chains flattened (bayes: ``bias (S, 2)``,
             ``noise_scale (S, 2)``, ``correlation (S,)``, ``looking_share (S,)``,
             ``responsibilities (S, N)``), else ``None``. Sampler statistics
-            (divergences, step sizes, …) are in ``posterior.sample_stats``.
-        summary: ``az.summary`` table (mean, sd, 90% HDI, bulk and tail ESS, split r-hat) of
-            the model's parameters (bayes, :func:`jaxgaze.nuts.posterior_summary`), else ``None``.
+            (divergences, step sizes, …) are in ``sampler.idata.sample_stats``.
         candidate: index of the LMedS candidate ``b^med = o_candidate`` (lmeds), else ``None``.
         offsets: ``(N, 2)`` the offsets used, kept for :func:`update_bias`.
         options: the keyword options of the fit, reused by :func:`update_bias`.
         result: ``RESULTS.successful``, or (bayes) ``RESULTS.not_mixed`` when the sampler
             failed the checks of :func:`jaxgaze.nuts.mixing_result` (split r-hat, bulk and
             tail ESS, divergences, acceptance): its draws are then not a reliable posterior.
-        diagnostics: :func:`jaxgaze.nuts.mixing_diagnostics` of the run (bayes), else ``None``.
+            :func:`jaxgaze.succeeded` reads it.
     """
 
     bias: Float[np.ndarray, "2"]
@@ -94,19 +91,12 @@ class BiasEstimate(NamedTuple):
     inliers: Bool[np.ndarray, " N"]
     covariance: Float[np.ndarray, "2 2"] | None = None
     responsibilities: Float[np.ndarray, " N"] | None = None
-    posterior: "az.InferenceData | None" = None
+    sampler: SamplerReport | None = None
     samples: dict | None = None
-    summary: object = None
     candidate: int | None = None
     offsets: Float[np.ndarray, "N 2"] | None = None
     options: dict | None = None
     result: RESULTS = RESULTS.successful
-    diagnostics: dict | None = None
-
-    @property
-    def succeeded(self) -> bool:
-        """Whether the fit succeeded (``result`` is ``successful``)."""
-        return bool(self.result == RESULTS.successful)
 
     @property
     def bias_deg(self) -> np.ndarray:
@@ -304,17 +294,17 @@ def _model(options: tuple):
 
 
 def sample_bias_posterior(
-    key: PRNGKeyArray,
     offsets: Float[Array, "... N 2"],
     mask: Bool[Array, "... N"] | None = None,
     silent_offsets: Float[Array, "... M 2"] | None = None,
     silent_mask: Bool[Array, "... M"] | None = None,
     *,
+    key: PRNGKeyArray,
     num_warmup: int = 500,
     num_samples: int = 500,
     num_chains: int = 1,
     target_accept_prob: float = 0.8,
-    progress_bar: bool = False,
+    progress: bool = False,
     **model_options,
 ) -> tuple[dict, dict]:
     """NUTS draws from :func:`bias_model` (Siegfried et al. 2017, Sec. 5, Fig. 7) for one person or many at once.
@@ -369,7 +359,7 @@ def sample_bias_posterior(
     values, stats = sample_nuts(
         _model(tuple(sorted(model_options.items()))), key, model_args, init,
         num_warmup=num_warmup, num_samples=num_samples, target_accept_prob=target_accept_prob,
-        progress_bar=progress_bar, description="gaze bias posterior",
+        progress=progress, description="gaze bias posterior",
     )
     shape = batch + (num_chains,)
     values = {k: v.reshape(shape + v.shape[1:]) for k, v in values.items()}
@@ -378,14 +368,14 @@ def sample_bias_posterior(
     return values, stats
 
 
-def _fit_bayes(o: jax.Array, key, num_warmup, num_samples, num_chains, target_accept_prob, progress_bar,
+def _fit_bayes(o: jax.Array, key, num_warmup, num_samples, num_chains, target_accept_prob, progress,
                model_options, silent_offsets=None):
     import arviz as az
 
     key = jax.random.key(0) if key is None else key
-    values, stats = sample_bias_posterior(key, o, None, silent_offsets, num_warmup=num_warmup,
+    values, stats = sample_bias_posterior(o, None, silent_offsets, key=key, num_warmup=num_warmup,
                                           num_samples=num_samples, num_chains=num_chains,
-                                          target_accept_prob=target_accept_prob, progress_bar=progress_bar,
+                                          target_accept_prob=target_accept_prob, progress=progress,
                                           **model_options)
     values = {k: np.asarray(v) for k, v in values.items()}
     stats = {k: np.asarray(v) for k, v in stats.items()}
@@ -399,8 +389,7 @@ def _fit_bayes(o: jax.Array, key, num_warmup, num_samples, num_chains, target_ac
                   "offsets": ["frame", "axis"]},
             coords={"axis": ["yaw", "tilt"], "frame": np.arange(o.shape[0])},
         )
-    summary = posterior_summary(idata, _SUMMARY_VARS)
-    diagnostics = mixing_diagnostics(idata, _SUMMARY_VARS)
+    sampler = sampler_report(idata, _SUMMARY_VARS)
     flat = {k: v.reshape((-1,) + v.shape[2:]) for k, v in values.items()}
     bias_draws = flat["bias"]
     responsibilities = flat["responsibilities"].mean(0)
@@ -411,11 +400,9 @@ def _fit_bayes(o: jax.Array, key, num_warmup, num_samples, num_chains, target_ac
         inliers=responsibilities > 0.5,
         covariance=np.cov(bias_draws, rowvar=False).reshape(2, 2),
         responsibilities=responsibilities,
-        posterior=idata,
+        sampler=sampler,
         samples=flat,
-        summary=summary,
-        result=mixing_result(diagnostics),
-        diagnostics=diagnostics,
+        result=sampler.result,
     )
 
 
@@ -431,7 +418,7 @@ def estimate_bias(
     num_samples: int = 500,
     num_chains: int = 1,
     target_accept_prob: float = 0.8,
-    progress_bar: bool = False,
+    progress: bool = False,
     silent_offsets: Float[Array, "M 2"] | None = None,
     throw: bool = False,
     **model_options,
@@ -449,8 +436,9 @@ def estimate_bias(
     from passing for the partner.
 
     A ``"bayes"`` run that did not mix is the estimate's ``result``
-    (``RESULTS.not_mixed``, ``throw=False``) or a :class:`~jaxgaze.results.FitError`
-    (``throw=True``); ``"mean"`` and ``"lmeds"`` always succeed.
+    (``RESULTS.not_mixed``, ``throw=False``, the default; :func:`jaxgaze.succeeded` reads it) or a
+    :class:`~jaxgaze.results.FitError` carrying the estimate as ``error.fit`` (``throw=True``);
+    ``"mean"`` and ``"lmeds"`` always succeed (their ``sampler`` is ``None``).
 
     Precision: ``"mean"`` and ``"lmeds"`` give the same frames and agree to within
     1e-6 rad in float32 and float64 (barring LMedS candidates whose medians tie within
@@ -474,7 +462,7 @@ def estimate_bias(
         if silent_offsets is not None and len(silent_offsets):
             silent = _offsets(silent_offsets, method="silent_offsets")
             options["silent_offsets"] = np.asarray(silent)
-        result = _fit_bayes(o, key, num_warmup, num_samples, num_chains, target_accept_prob, progress_bar,
+        result = _fit_bayes(o, key, num_warmup, num_samples, num_chains, target_accept_prob, progress,
                             model_options, silent)
     elif method == "mean":
         x = np.asarray(o)
@@ -491,7 +479,8 @@ def estimate_bias(
 
 
 def update_bias(
-    previous: BiasEstimate, new_offsets: Float[Array, "M 2"], *, key: PRNGKeyArray | None = None
+    previous: BiasEstimate, new_offsets: Float[Array, "M 2"], *, key: PRNGKeyArray | None = None,
+    throw: bool = False,
 ) -> BiasEstimate:
     """Update an estimate as frames arrive: refit on all the offsets seen so far.
 
@@ -499,7 +488,7 @@ def update_bias(
     (or estimate) given every frame — no Gaussian approximation of the previous
     posterior, which would be poor for a mixture. The cost grows with ``N``, but
     ``N`` is small (tens of frames from the first minute) and padded sizes share a
-    compilation. Same method and options as ``previous``; ``key`` as in
+    compilation. Same method and options as ``previous``; ``key`` and ``throw`` as in
     :func:`estimate_bias`.
     """
     if previous.offsets is None:
@@ -511,4 +500,4 @@ def update_bias(
     options = dict(previous.options or {})
     sampler = {k: options.pop(k) for k in ("num_warmup", "num_samples", "num_chains", "target_accept_prob")
                if k in options}
-    return estimate_bias(offsets, previous.method, key=key, **sampler, **options)
+    return estimate_bias(offsets, previous.method, key=key, throw=throw, **sampler, **options)

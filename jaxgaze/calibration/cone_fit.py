@@ -54,7 +54,7 @@ from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
 from jaxgaze.geometry import perspective_distance, unit
 from jaxgaze.rays import GazeRays
-from jaxgaze.results import RESULTS, code, throw_if_failed
+from jaxgaze.results import RESULTS, code, succeeded, throw_if_failed
 
 __all__ = [
     "ConeCalibration",
@@ -97,6 +97,7 @@ class ConeCalibration(NamedTuple):
             ``degenerate``, ``collinear_through_camera``, ``behind_camera``, ``implausible``
             (the eye centre more than :data:`MAX_APEX_DISTANCE` from the camera) or ``nonfinite``
             (NaN or inf in the points; only reported under jit/vmap, concrete input raises).
+            :func:`jaxgaze.succeeded` reads it (a bool array, per wearer, when batched).
 
     On failure (``result != RESULTS.successful``) the geometric fields hold NaN-free placeholders:
     eye centre 0, direction +x, bandwidth 1, α = ξ = 0 (the inlier mask is kept); an
@@ -111,11 +112,6 @@ class ConeCalibration(NamedTuple):
     xi: Float[Array, ""]
     inliers: Bool[Array, " M"]
     result: RESULTS
-
-    @property
-    def succeeded(self) -> Array:
-        """``result == successful`` (an array; per wearer when batched)."""
-        return self.result == RESULTS.successful
 
     @property
     def message(self) -> str:
@@ -159,7 +155,7 @@ class ConeCalibration(NamedTuple):
             )
         if jnp.ndim(code(self.result)) != 0:
             raise ValueError("to_gaze_rays: needs a single calibration, not a batch; index it first")
-        if _is_concrete(code(self.result)) and not bool(self.succeeded):
+        if _is_concrete(code(self.result)) and not succeeded(self):
             raise ValueError(f"to_gaze_rays: the calibration failed: {self.message}")
         origins = jnp.einsum("...ij,j->...i", R, self.eye_center) + C
         directions = jnp.einsum("...ij,j->...i", R, self.direction)
@@ -404,7 +400,7 @@ def calibrate_cone(
     regularization: float = DEFAULT_REGULARIZATION,
     min_inlier_fraction: float = 0.25,
     degenerate_tol: float = 1e-4,
-    throw: bool = True,
+    throw: bool = False,
 ) -> ConeCalibration:
     """Calibrate the cone gaze model of one wearer from points of regard (Park et al. 2012, Sec. 3.2).
 
@@ -423,9 +419,10 @@ def calibrate_cone(
         degenerate_tol: relative tolerance of the degeneracy tests (the line's
             distance to the origin, and the inliers' spread off the line, each
             relative to the inliers' extent along the line).
-        throw: if ``True`` a failure raises :class:`jaxgaze.results.FitError`
-            (under ``jit``/``vmap`` an ``equinox`` runtime error); if ``False`` it
-            is reported in ``result`` with NaN-free placeholder values.
+        throw: if ``False`` (the default, as in every jaxgaze fit) a failure is reported in
+            ``result`` with NaN-free placeholder values; if ``True`` it raises
+            :class:`jaxgaze.results.FitError`, whose ``fit`` is the calibration ``throw=False``
+            returns (under ``jit``/``vmap`` an ``equinox`` runtime error).
 
     Returns:
         :class:`ConeCalibration`. The bandwidth is the per-axis standard
@@ -485,7 +482,7 @@ def calibrate_cone(
     far = (out.result == RESULTS.successful) & (out.eye_distance > MAX_APEX_DISTANCE)
     out = out._replace(result=RESULTS.where(far, RESULTS.implausible, out.result))
     if throw:
-        out = out._replace(eye_center=throw_if_failed(out.eye_center, out.result, "calibrate_cone"))
+        out = out._replace(eye_center=throw_if_failed(out.eye_center, out.result, "calibrate_cone", fit=out))
     return out
 
 

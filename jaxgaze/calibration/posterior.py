@@ -25,7 +25,7 @@ the eye centre along the ray: the scatter of the points grows linearly with thei
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -38,13 +38,9 @@ from jaxgaze.calibration.cone_fit import ConeCalibration
 from jaxgaze.cone import cone_log_density
 from jaxgaze.geometry import angle_between, unit
 from jaxgaze._checks import bucket_size
-from jaxgaze.nuts import (mixing_diagnostics, mixing_result, posterior_summary, quiet_single_chain, sample_nuts,
-                          set_units, split_chains)
+from jaxgaze.nuts import SamplerReport, quiet_single_chain, sample_nuts, sampler_report, set_units, split_chains
 from jaxgaze.rays import GazeRays
-from jaxgaze.results import RESULTS, throw_if_failed
-
-if TYPE_CHECKING:  # arviz is imported when a posterior is summarised: it is slow to import
-    import arviz as az
+from jaxgaze.results import RESULTS, succeeded, throw_if_failed
 
 __all__ = [
     "calibration_model",
@@ -143,36 +139,29 @@ class CalibrationPosterior(NamedTuple):
     """Posterior of one wearer's calibration.
 
     Attributes:
-        idata: ``arviz.InferenceData`` (posterior, sample stats, observed points), each chain as its two
-            halves (:func:`jaxgaze.nuts.split_chains`: arviz's own r-hat and ESS are then those reported),
-            each variable with its ``units`` attribute (:data:`UNITS`).
-        summary: ``az.summary`` table (mean, sd, 90% HDI, bulk and tail ESS, split r-hat) of
-            the main parameters (:func:`jaxgaze.nuts.posterior_summary`).
+        sampler: the :class:`~jaxgaze.nuts.SamplerReport` of the NUTS run: ``idata`` (posterior, sample
+            stats, observed points; each chain as its two halves, :func:`jaxgaze.nuts.split_chains`, so
+            that arviz's own r-hat and ESS are those reported; each variable with its ``units`` attribute,
+            :data:`UNITS`), the sampler's ``result`` (mixing only), its ``diagnostics`` and the ``summary``
+            table (mean, sd, 90% HDI, bulk and tail ESS, split r-hat) of the main parameters.
         eye_center, direction: posterior means, camera frame (direction renormalised).
         bandwidth: posterior mean of ``h`` (radians).
         samples: dict of posterior draws (``eye_center (S,3)``, ``direction (S,3)``, ``bandwidth (S,)``, …).
         predictive_check: dict with the observed mean whitened distance ``‖d‖/h`` of
             the inliers and its posterior-predictive distribution (``observed``, ``replicated``,
             ``p_value``), a check that the cone spread fits the data.
-        result: ``RESULTS.successful``; ``implausible`` when the mean eye centre is more
-            than :data:`MAX_EYE_OFFSET` from the camera, else ``not_mixed`` when the
-            sampler failed its checks (:func:`jaxgaze.nuts.mixing_result`).
-        diagnostics: :func:`jaxgaze.nuts.mixing_diagnostics` of the run.
+        result: the overall result: ``RESULTS.successful``; ``implausible`` when the mean eye centre
+            is more than :data:`MAX_EYE_OFFSET` from the camera, else the sampler's (``not_mixed`` when
+            it failed its checks, :func:`jaxgaze.nuts.mixing_result`). :func:`jaxgaze.succeeded` reads it.
     """
 
-    idata: "az.InferenceData"
-    summary: object
+    sampler: SamplerReport
     eye_center: np.ndarray
     direction: np.ndarray
     bandwidth: float
     samples: dict
     predictive_check: dict
     result: RESULTS = RESULTS.successful
-    diagnostics: dict | None = None
-
-    @property
-    def succeeded(self) -> bool:
-        return bool(self.result == RESULTS.successful)
 
     def credible_radii(self, level: float = 0.9) -> tuple[float, float]:
         """Radii of the ``level`` credible regions, centred on the posterior means.
@@ -267,7 +256,7 @@ def choose_calibration(fit: ConeCalibration, posterior: CalibrationPosterior, le
     why = ([f"outside the posterior's {100 * level:g}% region (its {100 * region:.0f}% region)"] if region > level
            else []) + ([f"{eye_distance:.2f} m from the camera (more than {MAX_EYE_OFFSET:g} m)"]
                        if needs_posterior(fit) else [])
-    use_posterior = bool(why) and posterior.succeeded
+    use_posterior = bool(why) and succeeded(posterior)
     then = "using the posterior mean" if use_posterior else "the posterior failed, so the point estimate is kept"
     vector = lambda v: "(" + ", ".join(f"{x:.3f}" for x in v) + ") m"  # noqa: E731
     message = (f"the RANSAC eye centre {vector(eye)} is {distance:.2f} m from the posterior mean "
@@ -295,7 +284,7 @@ def calibrate_cone_posterior(
     num_chains: int = 1,
     init_eye_center=None,
     init_direction=None,
-    progress_bar: bool = False,
+    progress: bool = False,
     throw: bool = False,
     **model_options,
 ) -> CalibrationPosterior:
@@ -307,12 +296,13 @@ def calibrate_cone_posterior(
     ``model_options`` go to :func:`calibration_model`. For many wearers at once use
     :func:`calibrate_cone_posterior_batch` (one compiled, vectorised run). A run that
     did not mix, or an implausible eye centre, is the posterior's ``result``
-    (``throw=False``) or a :class:`~jaxgaze.results.FitError` (``throw=True``).
+    (``throw=False``, the default) or a :class:`~jaxgaze.results.FitError` carrying the posterior as
+    ``error.fit`` (``throw=True``).
     """
     y = _points(points)
     init_eye = None if init_eye_center is None else np.asarray(init_eye_center, float)[None]
     init_dir = None if init_direction is None else np.asarray(init_direction, float)[None]
-    posterior = _fit([y], key, num_warmup, num_samples, num_chains, init_eye, init_dir, progress_bar, model_options)[0]
+    posterior = _fit([y], key, num_warmup, num_samples, num_chains, init_eye, init_dir, progress, model_options)[0]
     return throw_if_failed(posterior, posterior.result, "calibrate_cone_posterior") if throw else posterior
 
 
@@ -325,7 +315,7 @@ def calibrate_cone_posterior_batch(
     num_chains: int = 1,
     init_eye_centers=None,
     init_directions=None,
-    progress_bar: bool = False,
+    progress: bool = False,
     throw: bool = False,
     **model_options,
 ) -> list[CalibrationPosterior]:
@@ -335,7 +325,7 @@ def calibrate_cone_posterior_batch(
     masked internally). ``init_eye_centers``/``init_directions`` are ``(W, 3)`` or
     ``None``. Wearer ``w``'s chains use keys split from ``key``; the result is one
     :class:`CalibrationPosterior` per wearer, in order, each with its own ``result``;
-    ``throw=True`` raises on the first that failed.
+    ``throw=True`` raises on the first that failed, with the whole list as ``error.fit``.
     """
     ys = [_points(y) for y in (points if isinstance(points, (list, tuple)) else np.asarray(points, float))]
     if not ys:
@@ -346,9 +336,9 @@ def calibrate_cone_posterior_batch(
     posteriors = _fit(ys, key, num_warmup, num_samples, num_chains,
                       None if init_eye_centers is None else np.asarray(init_eye_centers, float),
                       None if init_directions is None else np.asarray(init_directions, float),
-                      progress_bar, model_options)
+                      progress, model_options)
     for w, posterior in enumerate(posteriors if throw else ()):
-        throw_if_failed(posterior, posterior.result, f"calibrate_cone_posterior_batch (wearer {w})")
+        throw_if_failed(posterior, posterior.result, f"calibrate_cone_posterior_batch (wearer {w})", fit=posteriors)
     return posteriors
 
 
@@ -358,7 +348,7 @@ def _model(model_options: tuple):
     return functools.partial(calibration_model, **dict(model_options))
 
 
-def _fit(ys, key, num_warmup, num_samples, num_chains, init_eye, init_dir, progress_bar, model_options):
+def _fit(ys, key, num_warmup, num_samples, num_chains, init_eye, init_dir, progress, model_options):
     """Fit ``W`` wearers × ``num_chains`` chains in one batch; padded to a common length."""
     import arviz as az
 
@@ -390,7 +380,7 @@ def _fit(ys, key, num_warmup, num_samples, num_chains, init_eye, init_dir, progr
         (repeat(padded), jnp.asarray(np.repeat(mask, num_chains, axis=0))),
         {k: repeat(v) for k, v in init.items()},
         num_warmup=num_warmup, num_samples=num_samples, dense_mass=True, target_accept_prob=0.9,
-        progress_bar=progress_bar, description=f"calibration posterior ({num_wearers} wearer(s))",
+        progress=progress, description=f"calibration posterior ({num_wearers} wearer(s))",
     )
     values = {k: np.asarray(v).reshape((num_wearers, num_chains) + v.shape[1:]) for k, v in values.items()}
     stats = {k: np.asarray(v).reshape((num_wearers, num_chains) + v.shape[1:]) for k, v in stats.items()}
@@ -410,23 +400,20 @@ def _fit(ys, key, num_warmup, num_samples, num_chains, init_eye, init_dir, progr
                 coords={"axis": ["x", "y", "z"], "point": np.arange(m)},
             ))
         set_units(idata, UNITS)
-        summary = posterior_summary(idata, _SUMMARY_VARS)
-        diagnostics = mixing_diagnostics(idata, _SUMMARY_VARS)
+        sampler = sampler_report(idata, _SUMMARY_VARS)
         samples = {k: v.reshape((-1,) + v.shape[2:]) for k, v in draws.items()}
         direction_mean = samples["direction"].mean(0)
         eye_center = samples["eye_center"].mean(0)
         plausible = np.linalg.norm(eye_center) <= MAX_EYE_OFFSET
-        result = mixing_result(diagnostics) if plausible else RESULTS.implausible
+        result = sampler.result if plausible else RESULTS.implausible
         posteriors.append(CalibrationPosterior(
-            idata=idata,
-            summary=summary,
+            sampler=sampler,
             eye_center=eye_center,
             direction=direction_mean / np.linalg.norm(direction_mean),
             bandwidth=float(samples["bandwidth"].mean()),
             samples=samples,
             predictive_check=_predictive_check(check_keys[w], jnp.asarray(y, dtype), samples),
             result=result,
-            diagnostics=diagnostics,
         ))
     return posteriors
 

@@ -18,7 +18,7 @@ from jaxgaze.io.gaze import REFERENCE_AXES, GazeFileError, parse_point, read_gaz
 from jaxgaze.io.joint import read_speech
 from jaxgaze.io.text import InputFileError
 from jaxgaze.rays import UnitWarning
-from jaxgaze.results import RESULTS
+from jaxgaze.results import RESULTS, succeeded
 
 _DESCRIPTION = """\
 Speaker-prior gaze bias adaptation (Siegfried, Odobez et al. 2017). A gaze
@@ -172,7 +172,7 @@ def run(args) -> int:
                                     partner=partner, frames=track.frame, method=args.method, num_frames=args.frames,
                                     window_s=args.window, max_head_angle_deg=args.max_head_angle_deg,
                                     threshold_deg=args.threshold_deg, key=jax.random.key(args.seed), num_warmup=
-                                    args.samples, num_samples=args.samples, progress_bar=show_progress(args))
+                                    args.samples, num_samples=args.samples, progress=show_progress(args))
         caught += [w for w in fitting if issubclass(w.category, UnitWarning)]  # with --trust-units: ours
         for w in (w for w in fitting if not issubclass(w.category, UnitWarning)):  # any other as it was
             warnings.showwarning(w.message, w.category, w.filename, w.lineno)
@@ -195,11 +195,11 @@ def run(args) -> int:
                                  "speech": args.speech, **target_source})
     with writing(args.out):
         write_bias_report(args.out, record, args.per_frame)
-    if not result.estimate.succeeded:
-        d = result.estimate.diagnostics
-        print(f"jaxgaze bias: the posterior failed: {RESULTS[result.estimate.result]} (split r-hat {d['max_rhat']:.3g}, "
-              f"bulk ESS {d['min_ess_bulk']:.0f}, {d['divergences']} of {d['draws']} draws divergent, acceptance "
-              f"{d['acceptance_rate']:.2f}); written to {args.out}; try more --samples or --method lmeds", file=sys.stderr)
+    if not succeeded(result.estimate):
+        d = result.estimate.sampler.diagnostics
+        print(f"jaxgaze bias: the posterior failed: {RESULTS[result.estimate.result]} (split r-hat {d.max_rhat:.3g}, "
+              f"bulk ESS {d.min_ess_bulk:.0f}, {d.divergences} of {d.draws} draws divergent, acceptance "
+              f"{d.acceptance_rate:.2f}); written to {args.out}; try more --samples or --method lmeds", file=sys.stderr)
         return 1
     spread = "" if record["std_deg"] is None else " ± ({:.2f}°, {:.2f}°)".format(*record["std_deg"])
     summary(args, f"bias (yaw, tilt) = ({record['bias_deg'][0]:+.2f}°, {record['bias_deg'][1]:+.2f}°){spread} "

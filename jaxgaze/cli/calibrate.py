@@ -141,7 +141,7 @@ def _posterior(args, points, fit, key):
     try:
         return calibrate_cone_posterior(points, key=jax.random.fold_in(key, 1), num_warmup=args.samples,
                                         num_samples=args.samples, init_eye_center=np.asarray(fit.eye_center),
-                                        init_direction=np.asarray(fit.direction), progress_bar=show_progress(args))
+                                        init_direction=np.asarray(fit.direction), progress=show_progress(args))
     except ValueError as error:
         raise CommandError(f"posterior sampling failed: {error}", args.poses_a) from None
 
@@ -155,7 +155,7 @@ def run(args) -> int:
 
     from jaxgaze.calibration import MAX_APEX_DISTANCE, MAX_EYE_OFFSET, calibrate_cone, choose_calibration, needs_posterior
     from jaxgaze.io.calibration import write_calibration_json
-    from jaxgaze.results import RESULTS
+    from jaxgaze.results import RESULTS, succeeded
 
     wearer = _wearer(args)
     if not wearer:
@@ -177,7 +177,7 @@ def run(args) -> int:
         raise CommandError(f"calibration failed: the eye centre is {distance:.3g} m from the camera, more than "
                            f"{MAX_APEX_DISTANCE:g} m (positions in millimetres, or pose files that do not belong "
                            "together?)", args.poses_a)
-    if not bool(fit.succeeded):
+    if not succeeded(fit):
         raise CommandError(f"calibration failed: {fit.message}", args.poses_a)
     posterior = choice = None
     if args.posterior is not None or needs_posterior(fit):
@@ -192,12 +192,12 @@ def run(args) -> int:
     with writing(args.out, also={args.posterior: "posterior"}):
         record = write_calibration_json(args.out, wearer, fit, posterior=posterior, posterior_path=args.posterior,
                                         num_warmup=args.samples, choice=choice)
-    if posterior is not None and not posterior.succeeded:
-        d = posterior.diagnostics
+    if posterior is not None and not succeeded(posterior):
+        d = posterior.sampler.diagnostics
         files = args.out if args.posterior is None else f"{args.out} and {args.posterior}"
         print(f"jaxgaze calibrate: the posterior failed: {RESULTS[posterior.result]} (split r-hat "
-              f"{d['max_rhat']:.3g}, bulk ESS {d['min_ess_bulk']:.0f}, {d['divergences']} of {d['draws']} divergent, "
-              f"acceptance {d['acceptance_rate']:.2f}); written to {files} for inspection",
+              f"{d.max_rhat:.3g}, bulk ESS {d.min_ess_bulk:.0f}, {d.divergences} of {d.draws} divergent, "
+              f"acceptance {d.acceptance_rate:.2f}); written to {files} for inspection",
               file=sys.stderr)
         return 1
     d = record["direction"]

@@ -76,7 +76,7 @@ def _check_figure(args) -> None:
 def run(args) -> int:
     import warnings
 
-    from jaxgaze.concurrence.modes import ConcurrenceOptions, find_concurrences_over_frames, track_concurrences
+    from jaxgaze.concurrence import ConcurrenceOptions, find_concurrences_over_frames, track_concurrences
     from jaxgaze.io.calibration import calibrated_rays, read_calibration_json
     from jaxgaze.io.concurrences import write_concurrences_csv, write_members_csv
     from jaxgaze.io.figures import write_figure

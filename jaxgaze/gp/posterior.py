@@ -26,10 +26,11 @@ import numpyro
 import numpyro.distributions as dist
 from jaxtyping import Array, Float
 
-from jaxgaze.gp.exact import FittedGP, check_training_data, factorise, gaussian_log_marginal_likelihood, predict_from_factor
+from jaxgaze.gp._linalg import factorise, gaussian_log_marginal_likelihood, predict_from_factor
+from jaxgaze.gp.exact import FittedGP, check_training_data
 from jaxgaze.gp.kernels import Kernel
 from jaxgaze.gp.transforms import positive
-from jaxgaze.nuts import mixing_diagnostics, mixing_result, posterior_summary, quiet_single_chain, sample_nuts
+from jaxgaze.nuts import SamplerReport, quiet_single_chain, sample_nuts, sampler_report
 from jaxgaze.results import RESULTS, throw_if_failed
 
 __all__ = ["HyperparameterPosterior", "hyperparameter_model", "sample_hyperparameter_posterior"]
@@ -80,33 +81,20 @@ class HyperparameterPosterior(NamedTuple):
         kernels: the kernel with a leading draw axis ``S`` on every trainable leaf.
         samples: natural hyperparameters per draw, ``{name: (S, ...)}``.
         X, y: the training data.
-        inference_data: ``arviz.InferenceData`` of the run (posterior of the natural
-            hyperparameters, sample stats), for ``az.summary`` / ``az.plot_trace``.
-        divergences: number of divergent transitions after warm-up.
+        sampler: the :class:`~jaxgaze.nuts.SamplerReport` of the run: ``idata`` (posterior of the
+            natural hyperparameters, sample stats; for ``az.plot_trace``), its mixing ``diagnostics``
+            (split r-hat, bulk and tail ESS, divergences, acceptance) and ``summary`` (mean, sd,
+            90% HDI, ESS, r-hat per hyperparameter).
         result: ``RESULTS.successful``, or ``not_mixed`` when the run failed the shared
-            checks (:func:`jaxgaze.nuts.mixing_result`: split r-hat, bulk and tail ESS,
-            divergences, acceptance).
-        diagnostics: :func:`jaxgaze.nuts.mixing_diagnostics` of the run.
+            checks (:func:`jaxgaze.nuts.mixing_result`); ``jaxgaze.succeeded(posterior)`` reads it.
     """
 
     kernels: Kernel
     samples: dict
     X: Float[Array, "n D"]
     y: Float[Array, " n"]
-    inference_data: object
-    divergences: int
-    result: RESULTS = RESULTS.successful
-    diagnostics: dict | None = None
-
-    @property
-    def succeeded(self) -> bool:
-        return bool(self.result == RESULTS.successful)
-
-    @property
-    def summary(self):
-        """``az.summary`` of the hyperparameters: mean, sd, 90% HDI, bulk and tail ESS, split r-hat
-        (:func:`jaxgaze.nuts.posterior_summary`)."""
-        return posterior_summary(self.inference_data, list(self.samples))
+    sampler: SamplerReport
+    result: RESULTS
 
     def predict(self, X_new: Float[Array, "m D"], *, max_draws: int = 100) -> tuple[Array, Array]:
         """Mean and variance at ``X_new`` (Yücel et al. 2013, eq. 12–13), averaged over draws.
@@ -147,7 +135,7 @@ def sample_hyperparameter_posterior(
     prior_scale: float = 1.5,
     num_warmup: int = 300,
     num_samples: int = 300,
-    progress_bar: bool = False,
+    progress: bool = False,
     throw: bool = False,
 ) -> HyperparameterPosterior:
     """Sample ``p(θ | X, y)`` for the trainable hyperparameters of ``kernel`` with NUTS (Yücel et al. 2013, eq. 11).
@@ -159,7 +147,8 @@ def sample_hyperparameter_posterior(
     The cost per leapfrog step is one Cholesky of the ``n × n`` kernel matrix
     plus its inverse for the gradient, so use a few hundred points. A run that did
     not mix is the posterior's ``result`` (``RESULTS.not_mixed``, ``throw=False``)
-    or a :class:`~jaxgaze.results.FitError` (``throw=True``).
+    or a :class:`~jaxgaze.results.FitError` (``throw=True``) whose ``fit`` is the posterior.
+    ``progress=True`` shows a tqdm bar over the NUTS iterations.
     """
     import arviz as az
 
@@ -188,19 +177,17 @@ def sample_hyperparameter_posterior(
     values, stats = sample_nuts(
         model, key, (X[None], y[None], [a[None] for a in loc], prior_scale[None]), init,
         num_warmup=num_warmup, num_samples=num_samples, dense_mass=True, target_accept_prob=0.9,
-        progress_bar=progress_bar, description="GP hyperparameters",
+        progress=progress, description="GP hyperparameters",
     )
     values = jax.tree_util.tree_map(lambda a: a[0], values)
     raws = [values["log_" + n] for n in names]
     draws = eqx.combine(jax.tree_util.tree_unflatten(treedef, raws), static)
     samples = {n: np.asarray(values[n]) for n in names}
-    divergences = int(np.sum(np.asarray(stats["diverging"][0])))
     with quiet_single_chain(1):
         idata = az.from_dict(
             posterior={n: v[None] for n, v in samples.items()},
             sample_stats={k: np.asarray(v)[:1] for k, v in stats.items()},
         )
-    diagnostics = mixing_diagnostics(idata, names)
-    posterior = HyperparameterPosterior(draws, samples, X, y, idata, divergences, mixing_result(diagnostics),
-                                        diagnostics)
+    sampler = sampler_report(idata, names)
+    posterior = HyperparameterPosterior(draws, samples, X, y, sampler, sampler.result)
     return throw_if_failed(posterior, posterior.result, "sample_hyperparameter_posterior") if throw else posterior

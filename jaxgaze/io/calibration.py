@@ -169,8 +169,8 @@ def write_calibration_json(path, wearer: str, cone: ConeCalibration, *, posterio
         "eye_center_mean": [float(x) for x in posterior.eye_center],
         "direction_mean": [float(x) for x in posterior.direction],
         "bandwidth_mean": float(posterior.bandwidth),
-        **sampler_record(posterior.result, posterior.diagnostics, posterior.summary),
-        "num_samples": len(posterior.samples["bandwidth"]) // int(posterior.diagnostics["chains"]),
+        **sampler_record(posterior.sampler, posterior.result),
+        "num_samples": len(posterior.samples["bandwidth"]) // int(posterior.sampler.diagnostics.chains),
         "num_warmup": None if num_warmup is None else int(num_warmup),
         "file": None if posterior_path is None else os.path.basename(os.fspath(posterior_path)),
     }
@@ -179,7 +179,7 @@ def write_calibration_json(path, wearer: str, cone: ConeCalibration, *, posterio
         return record
     with atomic_path(posterior_path) as netcdf:
         try:
-            posterior.idata.to_netcdf(netcdf)
+            posterior.sampler.idata.to_netcdf(netcdf)
         except (ValueError, RuntimeError) as error:  # netCDF back-end errors
             raise OSError(0, str(error), os.fspath(posterior_path)) from None
         _write_json(path, record)

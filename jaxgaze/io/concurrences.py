@@ -28,8 +28,8 @@ _COVARIANCE_ENTRIES = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 
 def write_concurrences_csv(path, frame_ids, concurrences, tracks, *, reference=None) -> int:
     """Write :data:`OUTPUT_COLUMNS`, one row per (frame, valid mode) of a padded ``(T, K)`` result of
-    :func:`~jaxgaze.concurrence.modes.find_concurrences_over_frames` with its
-    :class:`~jaxgaze.concurrence.modes.Tracks` (atomically). Returns the number of rows.
+    :func:`~jaxgaze.concurrence.find_concurrences_over_frames` with its
+    :class:`~jaxgaze.concurrence.Tracks` (atomically). Returns the number of rows.
 
     ``reference`` (float64 ``(3,)`` m, e.g. :attr:`~jaxgaze.io.rays.RayRecording.reference`) is added
     to the locations, in float64, when they were found from rays measured from it. A valid mode whose

@@ -3,7 +3,7 @@
 
 Readers raise :class:`GazeFileError` (an :class:`~jaxgaze.io.text.InputFileError`,
 ``path, line N: what``); the OpenFace reader's own errors are
-:class:`~jaxgaze.io.openface.OpenFaceFileError` and its warnings (dropped frames) pass through.
+:class:`~jaxgaze.io.tools.openface.OpenFaceFileError` and its warnings (dropped frames) pass through.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 
-from jaxgaze.io.openface import looks_like_openface, read_openface
+from jaxgaze.io.tools.openface import looks_like_openface, read_openface
 from jaxgaze.io.poses import check_quaternion
 from jaxgaze.io.text import InputFileError, read_csv_table, read_text
 from jaxgaze.poses import quaternions_to_matrices
@@ -74,8 +74,8 @@ class GazeTrack(NamedTuple):
 
 def is_openface_csv(text: str) -> bool:
     """Whether the first non-blank line names OpenFace's ``gaze_angle_x`` or ``pose_Rx`` column, or is
-    otherwise OpenFace's (:func:`~jaxgaze.io.openface.looks_like_openface`; then
-    :func:`~jaxgaze.io.openface.read_openface` names the missing columns and the flag that writes them)."""
+    otherwise OpenFace's (:func:`~jaxgaze.io.tools.openface.looks_like_openface`; then
+    :func:`~jaxgaze.io.tools.openface.read_openface` names the missing columns and the flag that writes them)."""
     for line in text.splitlines():
         if line.strip():
             names = [cell.strip() for cell in line.split(",")]
@@ -159,7 +159,7 @@ def read_gaze_csv(path) -> GazeTrack:
 
 
 def read_openface_gaze(path, *, face_id: Optional[int] = None, min_confidence: float = 0.75) -> GazeTrack:
-    """An OpenFace 2 CSV (:func:`~jaxgaze.io.openface.read_openface`) as a :class:`GazeTrack` in our camera
+    """An OpenFace 2 CSV (:func:`~jaxgaze.io.tools.openface.read_openface`) as a :class:`GazeTrack` in our camera
     frame: the gaze angles in the head frame, ``R_camera_from_head``, the eyes at OpenFace's head position
     ``pose_T`` (metres) and no targets. Timestamps must increase with the frame."""
     track = read_openface(path, min_confidence=min_confidence, face_id=face_id)

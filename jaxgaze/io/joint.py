@@ -5,7 +5,7 @@ Both writers are atomic (:func:`~jaxgaze.io.text.atomic_path`): on any failure, 
 included, no partial file is left and an existing file is untouched.
 
 The posterior is read by attribute only (``people``, ``candidates``, ``membership (T, P, C)``,
-``mutual (T, P, P)``, ``idata``), as :class:`jaxgaze.joint.JointPosterior` has them.
+``mutual (T, P, P)``, ``sampler.idata``), as :class:`jaxgaze.joint.JointPosterior` has them.
 """
 
 from __future__ import annotations
@@ -281,13 +281,13 @@ NETCDF_UNITS = {"bias": "rad", "cone_width": "rad", "alpha_person": "1", "alpha_
 
 
 def write_joint_netcdf(path, posterior) -> str:
-    """Write ``posterior.idata`` (an arviz ``InferenceData``) to ``path`` as netCDF, atomically; returns ``path``.
+    """Write ``posterior.sampler.idata`` (an arviz ``InferenceData``) to ``path`` as netCDF, atomically; returns ``path``.
 
     Read it back with ``arviz.from_netcdf(path)``. Each sampler chain is written as its two halves
     (:func:`jaxgaze.nuts.split_chains`), so that arviz's ``az.summary`` gives the split r-hat and ESS
     reported, and every variable has its ``units`` attribute (:data:`NETCDF_UNITS`).
     """
-    idata = split_chains(posterior.idata)
+    idata = split_chains(posterior.sampler.idata)
     if hasattr(idata, "groups"):
         set_units(idata, NETCDF_UNITS)
     with atomic_path(path) as tmp:

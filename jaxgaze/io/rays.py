@@ -24,7 +24,7 @@ CSV_COLUMNS = ("frame", "person", "ox", "oy", "oz", "dx", "dy", "dz")
 DEFAULT_BANDWIDTH = 0.05
 
 _MIN_DIRECTION_NORM = 1e-9
-_RECENTRE_DISTANCE = 1024.0  # metres, as jaxgaze.concurrence.modes.RECENTRE_DISTANCE
+_RECENTRE_DISTANCE = 1024.0  # metres, as jaxgaze.concurrence.recentre.RECENTRE_DISTANCE
 _FLOAT32_MAX = 3.4028234e38
 
 

@@ -16,21 +16,24 @@ def finite_or_none(value):
     return float(value) if value is not None and math.isfinite(float(value)) else None
 
 
-def sampler_record(result, diagnostics: dict, summary) -> dict:
-    """The record of one posterior: ``result`` (its :class:`~jaxgaze.results.RESULTS` name), the
-    mixing diagnostics of :func:`jaxgaze.nuts.mixing_diagnostics` (``r_hat_max``, ``ess_bulk_min``,
-    ``ess_tail_min``, ``divergences``, ``acceptance_rate``, ``chains``) and under ``"parameters"``
-    each row of the :func:`jaxgaze.nuts.posterior_summary` table (mean, sd, 90% HDI, bulk and tail
-    ESS, split r-hat); ``null`` where a value is undefined.
+def sampler_record(report, result=None) -> dict:
+    """The record of one posterior from its :class:`~jaxgaze.nuts.SamplerReport` ``report``: ``result``
+    (the name of ``result`` when given, the overall result of a posterior that adds checks beyond
+    mixing, e.g. ``implausible``; else of ``report.result``), the mixing diagnostics
+    (:class:`~jaxgaze.nuts.MixingDiagnostics`: ``r_hat_max``, ``ess_bulk_min``, ``ess_tail_min``,
+    ``divergences``, ``acceptance_rate``, ``chains``) and under ``"parameters"`` each row of its
+    summary table (mean, sd, 90% HDI, bulk and tail ESS, split r-hat); ``null`` where a value is
+    undefined.
     """
+    d = report.diagnostics
     return {
-        "result": NAMES[int(np.asarray(code(result)))],
-        "r_hat_max": finite_or_none(diagnostics["max_rhat"]),
-        "ess_bulk_min": finite_or_none(diagnostics["min_ess_bulk"]),
-        "ess_tail_min": finite_or_none(diagnostics["min_ess_tail"]),
-        "divergences": int(diagnostics["divergences"]),
-        "acceptance_rate": finite_or_none(diagnostics["acceptance_rate"]),
-        "chains": int(diagnostics["chains"]),
+        "result": NAMES[int(np.asarray(code(report.result if result is None else result)))],
+        "r_hat_max": finite_or_none(d.max_rhat),
+        "ess_bulk_min": finite_or_none(d.min_ess_bulk),
+        "ess_tail_min": finite_or_none(d.min_ess_tail),
+        "divergences": int(d.divergences),
+        "acceptance_rate": finite_or_none(d.acceptance_rate),
+        "chains": int(d.chains),
         "parameters": {str(row): {str(column): finite_or_none(value) for column, value in values.items()}
-                       for row, values in summary.to_dict(orient="index").items()},
+                       for row, values in report.summary.to_dict(orient="index").items()},
     }

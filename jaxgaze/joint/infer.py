@@ -2,10 +2,11 @@
 
 :func:`fit_joint` starts from the pipeline (:func:`~jaxgaze.joint.joint_start`),
 draws from the posterior and returns a :class:`JointPosterior`: the arviz
-``InferenceData``, the membership probabilities of every frame, who looks at whom,
-mutual gaze, the concurrences, the diagnostics and a posterior predictive check.
-A run whose diagnostics fail carries ``RESULTS.not_mixed`` (``throw=False``) or
-raises :class:`~jaxgaze.results.FitError` (``throw=True``).
+``InferenceData``, diagnostics and summary (its ``sampler``, a :class:`~jaxgaze.nuts.SamplerReport`),
+the membership probabilities of every frame, who looks at whom, mutual gaze, the concurrences and a
+posterior predictive check. A run whose diagnostics fail carries ``RESULTS.not_mixed`` (``throw=False``,
+the default) or raises :class:`~jaxgaze.results.FitError` with the posterior as ``error.fit``
+(``throw=True``).
 """
 
 from __future__ import annotations
@@ -28,19 +29,20 @@ from numpyro.infer import SVI, Predictive, Trace_ELBO
 from numpyro.infer.util import potential_energy
 
 from jaxgaze._batching import frame_sharding
-from jaxgaze.bias import gaze_angles_to_direction, head_to_world
+from jaxgaze.bias.looking import gaze_angles_to_direction, head_to_world
 from jaxgaze.cone import sample_gaze_directions
 from jaxgaze.geometry import angle_between, unit
 from jaxgaze.joint.data import JointData
 from jaxgaze.joint.init import JointStart, directions_to_people, joint_start
 from jaxgaze.joint.model import (BLOCK_FRAMES, JointPrior, ModelArrays, concurrence_locations, eye_positions,
                                  joint_model, target_marginals)
-from jaxgaze.nuts import (MAX_DIVERGENT_SHARE, MAX_RHAT, MIN_ESS, laplace_inverse_mass, mixing_diagnostics,
-                          mixing_result, posterior_summary, sample_nuts)
+from jaxgaze.nuts import (MAX_DIVERGENT_SHARE, MAX_RHAT, MIN_ESS, SamplerReport, laplace_inverse_mass,
+                          posterior_summary, sample_nuts, sampler_report)
 from jaxgaze.rays import GazeRays
-from jaxgaze.results import RESULTS, name, throw_if_failed
+from jaxgaze.results import RESULTS, throw_if_failed
 
-__all__ = ["JointPosterior", "fit_joint", "mean_field_guide", "MAX_RHAT", "MIN_ESS", "MAX_DIVERGENT_SHARE", "METHODS"]
+__all__ = ["JointPosterior", "SVIDiagnostics", "fit_joint", "mean_field_guide", "MAX_RHAT", "MIN_ESS",
+           "MAX_DIVERGENT_SHARE", "METHODS"]
 
 #: Inference methods of :func:`fit_joint`.
 METHODS = ("nuts", "svi")
@@ -231,6 +233,21 @@ def _posterior_summaries(key, draws: dict, arrays: ModelArrays, prior: JointPrio
     return jnp.where(mask, total / n, 0.0), jnp.where(mask, mutual / n, 0.0), observed, replicated
 
 
+class SVIDiagnostics(NamedTuple):
+    """How an SVI fit of :func:`fit_joint` converged (the ``diagnostics`` of its ``sampler``).
+
+    ``elbo_change``: the mean loss (negative ELBO) of the last tenth of the steps minus that of the
+    tenth before; ``elbo_noise``: the standard error of that difference; ``final_loss``: the mean
+    loss of the last tenth; ``draws``: the guide draws taken. A change below ``−3 × noise`` (still
+    improving) is ``RESULTS.max_steps_reached``.
+    """
+
+    elbo_change: float
+    elbo_noise: float
+    final_loss: float
+    draws: int
+
+
 class JointPosterior(NamedTuple):
     """The joint posterior of a recording (Park et al. 2012, eq. 3; Siegfried et al. 2017, eq. 1).
 
@@ -238,11 +255,16 @@ class JointPosterior(NamedTuple):
     elsewhere ``P+K``.
 
     Attributes:
-        idata: ``arviz.InferenceData`` (posterior, sample_stats, observed_data).
-        result: a :class:`~jaxgaze.results.RESULTS` item (``not_mixed`` when the
-            diagnostics fail; ``max_steps_reached`` for an SVI run still improving).
-        diagnostics: NUTS: :func:`jaxgaze.nuts.mixing_diagnostics` (split r-hat, bulk and
-            tail ESS, divergences, acceptance); SVI: ``elbo_change`` and its noise.
+        sampler: a :class:`~jaxgaze.nuts.SamplerReport`. NUTS: its ``idata`` (posterior, sample_stats,
+            observed_data), ``result`` (``not_mixed`` when the mixing checks fail), ``diagnostics``
+            (:class:`~jaxgaze.nuts.MixingDiagnostics`: split r-hat, bulk and tail ESS, divergences,
+            acceptance) and ``summary`` (:func:`jaxgaze.nuts.posterior_summary`). SVI has no chain to
+            judge: ``idata`` holds the guide's independent draws (posterior, observed_data; no
+            sample_stats), ``result`` the SVI convergence check (``successful``, ``max_steps_reached``
+            for a run still improving, ``nonfinite``), ``diagnostics`` an :class:`SVIDiagnostics`
+            and ``summary`` the table of those draws.
+        result: the overall :class:`~jaxgaze.results.RESULTS` item: the sampler's, or ``nonfinite``
+            when a draw is not finite. :func:`jaxgaze.succeeded` reads it.
         method: ``"nuts"`` or ``"svi"``.
         people: names; fps: frames per second.
         membership: ``(T, P, C)`` posterior ``P(z_ti = j)`` given the whole recording
@@ -258,9 +280,8 @@ class JointPosterior(NamedTuple):
             ``replicated (S, P)``, ``p_value (P,)``).
     """
 
-    idata: object
+    sampler: SamplerReport
     result: RESULTS
-    diagnostics: dict
     method: str
     people: tuple[str, ...]
     fps: float
@@ -276,18 +297,8 @@ class JointPosterior(NamedTuple):
         return len(self.people)
 
     @property
-    def summary(self):
-        """``az.summary`` of the model's parameters: mean, sd, 90% HDI, bulk and tail ESS, split r-hat
-        (:func:`jaxgaze.nuts.posterior_summary`; for SVI, of the guide's independent draws)."""
-        return posterior_summary(self.idata, _SUMMARY_SITES)
-
-    @property
     def num_concurrences(self) -> int:
         return self.membership.shape[-1] - self.num_people - 1
-
-    @property
-    def succeeded(self) -> bool:
-        return name(self.result) == "successful"
 
     @property
     def candidates(self) -> tuple[str, ...]:
@@ -373,8 +384,8 @@ def _inference_data(samples: dict, stats: dict | None, data: JointData, K: int):
 
 def fit_joint(
     data: JointData,
-    key,
     *,
+    key,
     method: str = "nuts",
     num_warmup: int = 500,
     num_samples: int = 500,
@@ -413,8 +424,9 @@ def fit_joint(
             the warm-up); with wearers of head-mounted cameras, whose eyes the start
             holds, it learns the mass matrix in the warm-up windows instead.
         progress: progress bars on stderr.
-        throw: raise :class:`~jaxgaze.results.FitError` instead of returning a
-            failed ``result``.
+        throw: ``False`` (the default, as in every jaxgaze fit): a failure is the posterior's
+            ``result``; ``True``: raise :class:`~jaxgaze.results.FitError`, whose ``fit`` is that
+            posterior.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
@@ -426,7 +438,7 @@ def fit_joint(
         if int(value) != value or value < least:
             raise ValueError(f"{label} must be an integer ≥ {least}, got {value!r}")
     k_start, k_fit, k_draws, k_check = jax.random.split(key, 4)
-    start = joint_start(data, k_start, progress=progress) if start is None else start
+    start = joint_start(data, key=k_start, progress=progress) if start is None else start
     if start.concurrence_centres.shape[0] != data.num_windows:
         raise ValueError(f"start has {start.concurrence_centres.shape[0]} windows, the data {data.num_windows}")
     if start.eye_offset.shape[0] != len(data.wearers):
@@ -457,16 +469,16 @@ def fit_joint(
         mass = batched(_laplace_inverse_mass(unconstrained, arrays, prior)) if at_mode else None
         draws, stats = sample_nuts(model, k_fit, tuple(batched(a) for a in arrays), init,
                                    num_warmup=int(num_warmup), num_samples=int(num_samples), dense_mass=True,
-                                   inverse_mass_matrix=mass, progress_bar=progress, description="joint NUTS")
+                                   inverse_mass_matrix=mass, progress=progress, description="joint NUTS")
         draws = {k: np.asarray(v) for k, v in draws.items()}
         stats = {k: np.asarray(v) for k, v in stats.items()}
-        idata = _inference_data(draws, stats, data, K)
-        diagnostics = mixing_diagnostics(idata, _SUMMARY_SITES)
-        result = mixing_result(diagnostics)
+        sampler = sampler_report(_inference_data(draws, stats, data, K), _SUMMARY_SITES)
     else:
-        draws, result, diagnostics = _svi(data, arrays, unconstrained, prior, k_fit, k_draws, int(num_steps),
-                                          int(frames_per_step), float(learning_rate), int(num_samples), progress)
+        draws, svi_result, diagnostics = _svi(data, arrays, unconstrained, prior, k_fit, k_draws, int(num_steps),
+                                              int(frames_per_step), float(learning_rate), int(num_samples), progress)
         idata = _inference_data(draws, None, data, K)
+        sampler = SamplerReport(idata, svi_result, diagnostics, posterior_summary(idata, _SUMMARY_SITES))
+    result = sampler.result
     flat = {k: v.reshape((-1,) + v.shape[2:]) for k, v in draws.items()}
     if not all(np.all(np.isfinite(v)) for v in flat.values()):
         result = RESULTS.nonfinite
@@ -476,11 +488,9 @@ def fit_joint(
                                                 _posterior_summaries(k_check, latent, arrays, prior))
     check = {"observed": observed.mean(axis=0), "replicated": replicated,
              "p_value": (replicated >= observed).mean(axis=0)}
-    posterior = JointPosterior(idata, result, diagnostics, method, data.people, data.fps, membership, mutual, flat,
+    posterior = JointPosterior(sampler, result, method, data.people, data.fps, membership, mutual, flat,
                                data.window, start, check)
-    if throw:
-        throw_if_failed(None, result, "fit_joint")
-    return posterior
+    return throw_if_failed(posterior, result, "fit_joint") if throw else posterior
 
 
 #: Sites on the positive half-line and in (0, 1): their guide is a normal in log and logit space.
@@ -597,5 +607,4 @@ def _svi(data, arrays, start, prior, key, key_draws, num_steps, frames_per_step,
         latent["concurrence_locations"] = np.asarray(
             jax.vmap(lambda d: concurrence_locations(d, centres, prior))(
                 {k: jnp.asarray(v[0]) for k, v in latent.items()}))[None]
-    return latent, result, {"elbo_change": change, "elbo_noise": noise, "final_loss": float(last.mean()),
-                            "draws": int(num_samples)}
+    return latent, result, SVIDiagnostics(change, noise, float(last.mean()), int(num_samples))

@@ -20,8 +20,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float, Int
 
-from jaxgaze.bias import (candidate_frames, direction_to_gaze_angles, gaze_angles_to_direction, gaze_offsets, head_target_angle, head_to_world,
-                          lmeds_bias, target_direction_head)
+from jaxgaze.bias.estimators import lmeds_bias
+from jaxgaze.bias.looking import (candidate_frames, direction_to_gaze_angles, gaze_angles_to_direction, gaze_offsets,
+                                  head_target_angle, head_to_world, target_direction_head)
 from jaxgaze.calibration import calibrate_cone
 from jaxgaze.concurrence import ConcurrenceOptions, find_concurrences_over_frames
 from jaxgaze.joint.data import JointData
@@ -225,8 +226,8 @@ def initial_concurrences(
 
 def joint_start(
     data: JointData,
-    key,
     *,
+    key,
     cone_width: float = 0.07,
     options: ConcurrenceOptions = DEFAULT_CONCURRENCE_OPTIONS,
     stride: int | None = None,

@@ -48,8 +48,8 @@ import numpyro.distributions as dist
 from jax.scipy.special import logsumexp
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxgaze.bias import gaze_angles_to_direction, head_to_world
-from jaxgaze.calibration import calibration_log_likelihood
+from jaxgaze.bias.looking import gaze_angles_to_direction, head_to_world
+from jaxgaze.calibration.posterior import calibration_log_likelihood
 from jaxgaze.cone import cone_direction_log_density
 from jaxgaze.geometry import unit
 
@@ -318,7 +318,7 @@ def joint_model(
     (W, K, 3)`` are the concurrences' initial locations per window (``K`` may be 0).
     A wearer's calibration points (Park et al. 2012, Sec. 3.2) lie on the cone of
     the same primary ray ``(c, Φ(b))`` and width ``h`` as their gaze in the
-    recording (:func:`~jaxgaze.calibration.calibration_log_likelihood`), so the
+    recording (:func:`~jaxgaze.calibration.posterior.calibration_log_likelihood`), so the
     calibration is inferred with the rest.
     ``blocks_per_step`` subsamples blocks of :data:`BLOCK_FRAMES` frames for SVI
     (the likelihood is rescaled by ``numpyro.plate``); ``None`` uses every block.

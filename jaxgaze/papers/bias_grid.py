@@ -67,7 +67,7 @@ def bias_grid(key, grid=GRID, *, num_sets: int = 20, num_warmup: int = 300, num_
         offsets = jnp.concatenate([s.offsets for s in sims])
         truth = np.concatenate([np.asarray(s.bias) for s in sims])
         lmeds = np.asarray(jax.vmap(lambda o: lmeds_bias(o)[0])(offsets))
-        values, stats = sample_bias_posterior(jax.random.fold_in(key, 10_000 + n), offsets, num_warmup=num_warmup,
+        values, stats = sample_bias_posterior(offsets, key=jax.random.fold_in(key, 10_000 + n), num_warmup=num_warmup,
                                               num_samples=num_samples)
         draws = np.asarray(values["bias"][:, 0])  # (sets, draws, 2)
         lo, hi = np.quantile(draws, [(1 - level) / 2, (1 + level) / 2], axis=1)

@@ -73,6 +73,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+from scipy.stats import chi2
 
 from jaxgaze.bias.estimators import lmeds_bias, sample_bias_posterior
 from jaxgaze.bias.looking import (
@@ -133,10 +134,10 @@ BAYES_MODEL_OPTIONS: dict = {}
 
 
 def chi2_2dof_quantile(level: float) -> float:
-    """Quantile of χ² with 2 degrees of freedom: ``−2 ln(1 − level)`` (4.605 for 0.9)."""
+    """Quantile of χ² with 2 degrees of freedom (``scipy.stats.chi2.ppf``; ``−2 ln(1 − level)``, 4.605 for 0.9)."""
     if not 0.0 < level < 1.0:
         raise ValueError(f"level must be in (0, 1), got {level}")
-    return -2.0 * math.log1p(-level)
+    return float(chi2.ppf(level, df=2))
 
 
 # --------------------------------------------------------------------------- frames
@@ -551,7 +552,7 @@ def evaluate_bias_methods(
                                       constant_values=v)
     quiet_o = jnp.concatenate([pad_silent(d["silent_offsets"], 0.0) for d in per_batch])
     quiet_ok = jnp.concatenate([pad_silent(d["silent_valid"], False) for d in per_batch])
-    values, stats = sample_bias_posterior(key_nuts, bay_o, bay_ok, quiet_o, quiet_ok, num_warmup=num_warmup,
+    values, stats = sample_bias_posterior(bay_o, bay_ok, quiet_o, quiet_ok, key=key_nuts, num_warmup=num_warmup,
                                           num_samples=num_samples, **options)
     draws = np.asarray(values["bias"]).reshape(bay_o.shape[0], -1, 2)
     bayes_mean = np.where(empty[:, None], 0.0, draws.mean(axis=1))

@@ -54,7 +54,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxgaze.geometry import axis_angle_to_rotation_matrix, orthonormal_basis, unit, yaw_pitch_to_direction
-from jaxgaze._checks import check_key
+from jaxgaze._checks import check_int, check_key, check_number
 from jaxgaze.simulate._random import Pool
 
 __all__ = [
@@ -336,28 +336,15 @@ def _simulate_many(keys, mounting, given, eye_in_head, rot, pos, frac, *, num_fr
 
 
 def _check_params(num_frames, eye_in_head, pose_noise_rotation, pose_noise_position, outlier_fraction, fps):
-    if isinstance(num_frames, bool) or not isinstance(num_frames, (int, np.integer)) or num_frames < 2:
-        raise ValueError(f"num_frames must be an integer ≥ 2, got {num_frames!r}")
-    values = {}
-    for name, value in (
-        ("eye_in_head", eye_in_head),
-        ("pose_noise_rotation", pose_noise_rotation),
-        ("pose_noise_position", pose_noise_position),
-        ("outlier_fraction", outlier_fraction),
-        ("fps", fps),
-    ):
-        try:
-            v = float(value)
-        except (TypeError, ValueError):
-            v = float("nan")
-        if not (math.isfinite(v) and v >= 0):
-            raise ValueError(f"{name} must be a finite number ≥ 0, got {value!r}")
-        values[name] = v
-    if values["outlier_fraction"] > 1:
-        raise ValueError(f"outlier_fraction must lie in [0, 1], got {outlier_fraction!r}")
-    if values["fps"] <= 0:
-        raise ValueError(f"fps must be positive, got {fps!r}")
-    return int(num_frames), values
+    num_frames = check_int("num_frames", num_frames, lo=2)
+    values = {
+        "eye_in_head": check_number("eye_in_head", eye_in_head, lo=0.0),
+        "pose_noise_rotation": check_number("pose_noise_rotation", pose_noise_rotation, lo=0.0),
+        "pose_noise_position": check_number("pose_noise_position", pose_noise_position, lo=0.0),
+        "outlier_fraction": check_number("outlier_fraction", outlier_fraction, lo=0.0, hi=1.0),
+        "fps": check_number("fps", fps, lo=0.0, lo_open=True),
+    }
+    return num_frames, values
 
 
 def _check_mounting(mounting) -> tuple[Mounting, bool]:
@@ -497,8 +484,7 @@ def simulate_wearers(
     is shared by all sessions). One vmapped, jitted pass.
     """
     check_key(key)
-    if isinstance(num_wearers, bool) or not isinstance(num_wearers, (int, np.integer)) or num_wearers < 1:
-        raise ValueError(f"num_wearers must be a positive integer, got {num_wearers!r}")
+    num_wearers = check_int("num_wearers", num_wearers)
     num_frames, values = _check_params(
         num_frames, eye_in_head, pose_noise_rotation, pose_noise_position, outlier_fraction, fps
     )

@@ -140,9 +140,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgaze._checks import check_key
+from jaxgaze._checks import check_frames, check_int, check_int_pair, check_key, check_number, check_pair
 from jaxgaze.simulate.calibration import random_mounting, simulate_calibration_session
-from jaxgaze.simulate.dyadic import _check_timing, _finite, _range
 
 __all__ = [
     "ELSEWHERE",
@@ -366,86 +365,67 @@ def conversation_config(**overrides) -> ConversationConfig:
     return _check_config(ConversationConfig()._replace(**overrides))
 
 
-def _int_range(name, value, lo, hi):
-    if not isinstance(value, (tuple, list)) or len(value) != 2:
-        raise ValueError(f"{name} must be a pair (lo, hi), got {value!r}")
-    out = []
-    for i, v in enumerate(value):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
-            raise ValueError(f"{name}[{i}] must be an integer in [{lo}, {hi}], got {v!r}")
-        out.append(int(v))
-    if out[1] < out[0]:
-        raise ValueError(f"{name} must satisfy lo ≤ hi, got {value!r}")
-    return tuple(out)
-
-
 def _check_config(config: ConversationConfig) -> ConversationConfig:
     """Validate and normalise (plain floats and tuples); ValueError names the field."""
     if not isinstance(config, ConversationConfig):
         raise ValueError(f"config must be a ConversationConfig, got {type(config).__name__}")
     c = {}
-    c["num_people_range"] = _int_range("num_people_range", config.num_people_range, 2, _MAX_PEOPLE)
-    c["num_objects_range"] = _int_range("num_objects_range", config.num_objects_range, 0, _MAX_OBJECTS)
-    c["standing_prob"] = _finite("standing_prob", config.standing_prob, lo=0.0, hi=1.0)
-    c["seated_radius_m"] = _range("seated_radius_m", config.seated_radius_m, lo=0.2, hi=10.0)
-    c["standing_radius_m"] = _range("standing_radius_m", config.standing_radius_m, lo=0.2, hi=10.0)
-    c["radius_jitter_m"] = _finite("radius_jitter_m", config.radius_jitter_m, lo=0.0, hi=0.15)
-    c["seated_eye_height_m"] = _range("seated_eye_height_m", config.seated_eye_height_m, lo=0.3, hi=2.5)
-    c["standing_eye_height_m"] = _range("standing_eye_height_m", config.standing_eye_height_m, lo=0.3, hi=2.5)
-    c["table_height_m"] = _finite("table_height_m", config.table_height_m, lo=0.0, hi=2.0)
-    c["seat_jitter"] = _finite("seat_jitter", config.seat_jitter, lo=0.0, hi=0.45)
-    c["body_sway_m"] = _finite("body_sway_m", config.body_sway_m, lo=0.0, hi=0.2)
-    c["object_disc"] = _finite("object_disc", config.object_disc, lo=0.0, hi=0.9)
-    c["object_spacing_m"] = _finite("object_spacing_m", config.object_spacing_m, lo=0.0, hi=2.0)
-    c["screen_prob"] = _finite("screen_prob", config.screen_prob, lo=0.0, hi=1.0)
-    c["screen_distance_m"] = _range("screen_distance_m", config.screen_distance_m, lo=0.1, hi=20.0)
-    c["screen_height_m"] = _range("screen_height_m", config.screen_height_m, lo=0.0, hi=5.0)
-    c["turn_median_s"] = _finite("turn_median_s", config.turn_median_s, lo=0.0, lo_open=True)
-    c["turn_sigma"] = _finite("turn_sigma", config.turn_sigma, lo=0.0, hi=3.0)
-    c["turn_s"] = _range("turn_s", config.turn_s, lo=0.1)
-    c["gap_s"] = _range("gap_s", config.gap_s, lo=-60.0, hi=60.0)
+    c["num_people_range"] = check_int_pair("num_people_range", config.num_people_range, lo=2, hi=_MAX_PEOPLE)
+    c["num_objects_range"] = check_int_pair("num_objects_range", config.num_objects_range, lo=0, hi=_MAX_OBJECTS)
+    c["standing_prob"] = check_number("standing_prob", config.standing_prob, lo=0.0, hi=1.0)
+    c["seated_radius_m"] = check_pair("seated_radius_m", config.seated_radius_m, lo=0.2, hi=10.0)
+    c["standing_radius_m"] = check_pair("standing_radius_m", config.standing_radius_m, lo=0.2, hi=10.0)
+    c["radius_jitter_m"] = check_number("radius_jitter_m", config.radius_jitter_m, lo=0.0, hi=0.15)
+    c["seated_eye_height_m"] = check_pair("seated_eye_height_m", config.seated_eye_height_m, lo=0.3, hi=2.5)
+    c["standing_eye_height_m"] = check_pair("standing_eye_height_m", config.standing_eye_height_m, lo=0.3, hi=2.5)
+    c["table_height_m"] = check_number("table_height_m", config.table_height_m, lo=0.0, hi=2.0)
+    c["seat_jitter"] = check_number("seat_jitter", config.seat_jitter, lo=0.0, hi=0.45)
+    c["body_sway_m"] = check_number("body_sway_m", config.body_sway_m, lo=0.0, hi=0.2)
+    c["object_disc"] = check_number("object_disc", config.object_disc, lo=0.0, hi=0.9)
+    c["object_spacing_m"] = check_number("object_spacing_m", config.object_spacing_m, lo=0.0, hi=2.0)
+    c["screen_prob"] = check_number("screen_prob", config.screen_prob, lo=0.0, hi=1.0)
+    c["screen_distance_m"] = check_pair("screen_distance_m", config.screen_distance_m, lo=0.1, hi=20.0)
+    c["screen_height_m"] = check_pair("screen_height_m", config.screen_height_m, lo=0.0, hi=5.0)
+    c["turn_median_s"] = check_number("turn_median_s", config.turn_median_s, lo=0.0, lo_open=True)
+    c["turn_sigma"] = check_number("turn_sigma", config.turn_sigma, lo=0.0, hi=3.0)
+    c["turn_s"] = check_pair("turn_s", config.turn_s, lo=0.1)
+    c["gap_s"] = check_pair("gap_s", config.gap_s, lo=-60.0, hi=60.0)
     if c["turn_s"][0] + c["gap_s"][0] < 0.05:
         raise ValueError(
             f"turn_s {config.turn_s!r} and gap_s {config.gap_s!r}: the shortest turn must outlast the largest "
             "overlap (turn_s[0] + gap_s[0] ≥ 0.05 s)"
         )
-    c["bias_deg"] = _range("bias_deg", config.bias_deg, lo=0.0, hi=60.0)
-    c["cone_width_deg"] = _range("cone_width_deg", config.cone_width_deg, lo=0.0, hi=45.0)
-    c["head_fraction"] = _range("head_fraction", config.head_fraction, lo=0.0, hi=1.0)
-    c["episode_interval_s"] = _range("episode_interval_s", config.episode_interval_s, lo=0.1)
-    c["episode_s"] = _range("episode_s", config.episode_s, lo=0.0)
+    c["bias_deg"] = check_pair("bias_deg", config.bias_deg, lo=0.0, hi=60.0)
+    c["cone_width_deg"] = check_pair("cone_width_deg", config.cone_width_deg, lo=0.0, hi=45.0)
+    c["head_fraction"] = check_pair("head_fraction", config.head_fraction, lo=0.0, hi=1.0)
+    c["episode_interval_s"] = check_pair("episode_interval_s", config.episode_interval_s, lo=0.1)
+    c["episode_s"] = check_pair("episode_s", config.episode_s, lo=0.0)
     if c["episode_s"][1] > c["episode_interval_s"][0]:
         raise ValueError(
             f"episode_s {config.episode_s!r} must end before the next episode starts "
             f"(episode_s[1] ≤ episode_interval_s[0] = {c['episode_interval_s'][0]})"
         )
-    c["fixation_s"] = _range("fixation_s", config.fixation_s, lo=0.01)
-    c["reaction_s"] = _finite("reaction_s", config.reaction_s, lo=0.0, hi=10.0)
-    c["w_person"] = _finite("w_person", config.w_person, lo=0.0)
-    c["speaker_beta"] = _finite("speaker_beta", config.speaker_beta, lo=-20.0, hi=20.0)
-    c["w_object"] = _finite("w_object", config.w_object, lo=0.0)
-    c["w_episode_object"] = _finite("w_episode_object", config.w_episode_object, lo=0.0)
-    c["w_elsewhere"] = _finite("w_elsewhere", config.w_elsewhere, lo=0.0, lo_open=True)
-    c["elsewhere_distance_m"] = _range("elsewhere_distance_m", config.elsewhere_distance_m, lo=0.1, hi=100.0)
-    c["elsewhere_yaw_deg"] = _finite("elsewhere_yaw_deg", config.elsewhere_yaw_deg, lo=0.0, hi=180.0)
-    c["elsewhere_elevation_deg"] = _range(
+    c["fixation_s"] = check_pair("fixation_s", config.fixation_s, lo=0.01)
+    c["reaction_s"] = check_number("reaction_s", config.reaction_s, lo=0.0, hi=10.0)
+    c["w_person"] = check_number("w_person", config.w_person, lo=0.0)
+    c["speaker_beta"] = check_number("speaker_beta", config.speaker_beta, lo=-20.0, hi=20.0)
+    c["w_object"] = check_number("w_object", config.w_object, lo=0.0)
+    c["w_episode_object"] = check_number("w_episode_object", config.w_episode_object, lo=0.0)
+    c["w_elsewhere"] = check_number("w_elsewhere", config.w_elsewhere, lo=0.0, lo_open=True)
+    c["elsewhere_distance_m"] = check_pair("elsewhere_distance_m", config.elsewhere_distance_m, lo=0.1, hi=100.0)
+    c["elsewhere_yaw_deg"] = check_number("elsewhere_yaw_deg", config.elsewhere_yaw_deg, lo=0.0, hi=180.0)
+    c["elsewhere_elevation_deg"] = check_pair(
         "elsewhere_elevation_deg", config.elsewhere_elevation_deg, lo=-80.0, hi=80.0
     )
-    c["head_lag_s"] = _finite("head_lag_s", config.head_lag_s, lo=0.0, hi=5.0)
+    c["head_lag_s"] = check_number("head_lag_s", config.head_lag_s, lo=0.0, hi=5.0)
     for name in ("head_sway_deg", "head_roll_deg", "tracker_drift_deg", "tracker_jitter_deg"):
-        c[name] = _finite(name, getattr(config, name), lo=0.0, hi=30.0)
-    c["measurement_scale_deg"] = _range("measurement_scale_deg", config.measurement_scale_deg, lo=0.0, hi=45.0)
-    c["dropout_fraction"] = _finite("dropout_fraction", config.dropout_fraction, lo=0.0, hi=0.5)
-    c["dropout_s"] = _range("dropout_s", config.dropout_s, lo=0.0, lo_open=True)
-    c["late_early_prob"] = _finite("late_early_prob", config.late_early_prob, lo=0.0, hi=1.0)
-    c["late_early_fraction"] = _range("late_early_fraction", config.late_early_fraction, lo=0.0, hi=0.9)
+        c[name] = check_number(name, getattr(config, name), lo=0.0, hi=30.0)
+    c["measurement_scale_deg"] = check_pair("measurement_scale_deg", config.measurement_scale_deg, lo=0.0, hi=45.0)
+    c["dropout_fraction"] = check_number("dropout_fraction", config.dropout_fraction, lo=0.0, hi=0.5)
+    c["dropout_s"] = check_pair("dropout_s", config.dropout_s, lo=0.0, lo_open=True)
+    c["late_early_prob"] = check_number("late_early_prob", config.late_early_prob, lo=0.0, hi=1.0)
+    c["late_early_fraction"] = check_pair("late_early_fraction", config.late_early_fraction, lo=0.0, hi=0.9)
     return ConversationConfig(**c)
-
-
-def _check_count(name, value, lo, hi):
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
-        raise ValueError(f"{name} must be an integer in [{lo}, {hi}] or None, got {value!r}")
-    return int(value)
 
 
 # ---------------------------------------------------------------------------
@@ -768,27 +748,14 @@ def simulate_conversation(
     check_key(key)
     config = _check_config(ConversationConfig() if config is None else config)
     if num_people is not None:
-        num_people = _check_count("num_people", num_people, 2, _MAX_PEOPLE)
+        num_people = check_int("num_people", num_people, lo=2, hi=_MAX_PEOPLE)
     if num_objects is not None:
-        num_objects = _check_count("num_objects", num_objects, 0, _MAX_OBJECTS)
-    if isinstance(num_wearers, bool) or not isinstance(num_wearers, (int, np.integer)) or not (
-        0 <= num_wearers <= (_MAX_PEOPLE if num_people is None else num_people)
-    ):
-        limit = _MAX_PEOPLE if num_people is None else f"num_people = {num_people}"
-        raise ValueError(f"num_wearers must be an integer in [0, {limit}], got {num_wearers!r}")
-    num_wearers = int(num_wearers)
-    if (
-        isinstance(calibration_frames, bool)
-        or not isinstance(calibration_frames, (int, np.integer))
-        or not 2 <= calibration_frames <= _MAX_CALIBRATION_FRAMES
-    ):
-        raise ValueError(
-            f"calibration_frames must be an integer in [2, {_MAX_CALIBRATION_FRAMES}], got {calibration_frames!r}"
-        )
-    calibration_frames = int(calibration_frames)
+        num_objects = check_int("num_objects", num_objects, lo=0, hi=_MAX_OBJECTS)
+    num_wearers = check_int("num_wearers", num_wearers, lo=0, hi=_MAX_PEOPLE if num_people is None else num_people)
+    calibration_frames = check_int("calibration_frames", calibration_frames, lo=2, hi=_MAX_CALIBRATION_FRAMES)
     if standing is not None and not isinstance(standing, (bool, np.bool_)):
         raise ValueError(f"standing must be True, False or None, got {standing!r}")
-    T, fps = _check_timing(duration_s, fps, max_frames=1_000_000)
+    T, fps = check_frames(duration_s, fps, max_frames=1_000_000)
     rng = _seed(key)
     deg = math.pi / 180
 
@@ -919,7 +886,6 @@ def simulate_conversations(key, num_scenes: int, **kwargs) -> list[Conversation]
     Keyword arguments as in :func:`simulate_conversation`.
     """
     check_key(key)
-    if isinstance(num_scenes, bool) or not isinstance(num_scenes, (int, np.integer)) or num_scenes < 1:
-        raise ValueError(f"num_scenes must be a positive integer, got {num_scenes!r}")
+    num_scenes = check_int("num_scenes", num_scenes)
     keys = jax.random.split(key, int(num_scenes))
     return [simulate_conversation(k, **kwargs) for k in keys]

@@ -109,7 +109,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxgaze._checks import check_key
+from jaxgaze._checks import check_frames, check_int, check_key, check_number, check_pair
 from jaxgaze.geometry import (
     direction_to_yaw_pitch,
     head_pose_to_rotation,
@@ -329,76 +329,46 @@ def dyadic_config(preset: str) -> DyadicConfig:
     return _PRESET_CONFIGS[preset]
 
 
-def _finite(name, value, *, lo=None, lo_open=False, hi=None):
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        v = float("nan")
-    bad = not math.isfinite(v)
-    if lo is not None and not bad:
-        bad = v <= lo if lo_open else v < lo
-    if hi is not None and not bad:
-        bad = v > hi
-    if bad:
-        bounds = []
-        if lo is not None:
-            bounds.append(f"{'>' if lo_open else '≥'} {lo}")
-        if hi is not None:
-            bounds.append(f"≤ {hi}")
-        raise ValueError(f"{name} must be a finite number {' and '.join(bounds)}, got {value!r}")
-    return v
-
-
-def _range(name, value, *, lo=None, lo_open=False, hi=None):
-    if not isinstance(value, (tuple, list)) or len(value) != 2:
-        raise ValueError(f"{name} must be a pair (lo, hi), got {value!r}")
-    a = _finite(f"{name}[0]", value[0], lo=lo, lo_open=lo_open, hi=hi)
-    b = _finite(f"{name}[1]", value[1], lo=lo, lo_open=lo_open, hi=hi)
-    if b < a:
-        raise ValueError(f"{name} must satisfy lo ≤ hi, got {value!r}")
-    return (a, b)
-
-
 def _check_config(config: DyadicConfig) -> DyadicConfig:
     """Validate and normalise (plain floats, tuples: hashable, so usable as a static argument)."""
     if config.preset not in _PRESET_CONFIGS:
         raise ValueError(f"DyadicConfig.preset {config.preset!r} is not a preset; choose one of {PRESETS}")
     c = {"preset": config.preset}
-    c["distance_m"] = _range("distance_m", config.distance_m, lo=0.3)
-    c["eye_height_m"] = _range("eye_height_m", config.eye_height_m, lo=0.3, hi=2.5)
-    c["body_sway_m"] = _finite("body_sway_m", config.body_sway_m, lo=0.0, hi=0.5)
-    c["body_yaw_deg"] = _finite("body_yaw_deg", config.body_yaw_deg, lo=0.0, hi=60.0)
-    c["head_fraction"] = _range("head_fraction", config.head_fraction, lo=0.0, hi=1.0)
-    c["head_lag_s"] = _finite("head_lag_s", config.head_lag_s, lo=0.0, hi=5.0)
+    c["distance_m"] = check_pair("distance_m", config.distance_m, lo=0.3)
+    c["eye_height_m"] = check_pair("eye_height_m", config.eye_height_m, lo=0.3, hi=2.5)
+    c["body_sway_m"] = check_number("body_sway_m", config.body_sway_m, lo=0.0, hi=0.5)
+    c["body_yaw_deg"] = check_number("body_yaw_deg", config.body_yaw_deg, lo=0.0, hi=60.0)
+    c["head_fraction"] = check_pair("head_fraction", config.head_fraction, lo=0.0, hi=1.0)
+    c["head_lag_s"] = check_number("head_lag_s", config.head_lag_s, lo=0.0, hi=5.0)
     for name in ("head_sway_deg", "head_jitter_deg", "head_roll_deg"):
-        c[name] = _finite(name, getattr(config, name), lo=0.0, hi=30.0)
-    c["turn_s"] = _range("turn_s", config.turn_s, lo=0.1)
-    c["gap_s"] = _range("gap_s", config.gap_s)
+        c[name] = check_number(name, getattr(config, name), lo=0.0, hi=30.0)
+    c["turn_s"] = check_pair("turn_s", config.turn_s, lo=0.1)
+    c["gap_s"] = check_pair("gap_s", config.gap_s)
     if c["turn_s"][0] + c["gap_s"][0] < 0.05 or c["turn_s"][0] <= -c["gap_s"][0] + 0.05:
         raise ValueError(
             f"turn_s {config.turn_s!r} and gap_s {config.gap_s!r}: the shortest turn must outlast the largest "
             "overlap (turn_s[0] > −gap_s[0] + 0.05 s)"
         )
-    c["fixation_s"] = _range("fixation_s", config.fixation_s, lo=0.05)
-    c["p_look_speaking"] = _finite("p_look_speaking", config.p_look_speaking, lo=0.0, hi=1.0)
-    c["p_look_silent"] = _finite("p_look_silent", config.p_look_silent, lo=0.0, hi=1.0)
+    c["fixation_s"] = check_pair("fixation_s", config.fixation_s, lo=0.05)
+    c["p_look_speaking"] = check_number("p_look_speaking", config.p_look_speaking, lo=0.0, hi=1.0)
+    c["p_look_silent"] = check_number("p_look_silent", config.p_look_silent, lo=0.0, hi=1.0)
     w = config.object_weights
     if not isinstance(w, (tuple, list)) or len(w) != NUM_OBJECTS:
         raise ValueError(f"object_weights must hold {NUM_OBJECTS} probabilities, got {w!r}")
-    w = tuple(_finite(f"object_weights[{i}]", x, lo=0.0, hi=1.0) for i, x in enumerate(w))
+    w = tuple(check_number(f"object_weights[{i}]", x, lo=0.0, hi=1.0) for i, x in enumerate(w))
     if sum(w) > 1.0 + 1e-9:
         raise ValueError(
             f"object_weights must sum to at most 1 (the rest is 'elsewhere'), got {config.object_weights!r}"
         )
     c["object_weights"] = w
-    c["fixation_noise_deg"] = _finite("fixation_noise_deg", config.fixation_noise_deg, lo=0.0, hi=30.0)
-    c["bias_deg"] = _range("bias_deg", config.bias_deg, lo=0.0, hi=60.0)
-    c["noise_deg"] = _finite("noise_deg", config.noise_deg, lo=0.0, hi=60.0)
+    c["fixation_noise_deg"] = check_number("fixation_noise_deg", config.fixation_noise_deg, lo=0.0, hi=30.0)
+    c["bias_deg"] = check_pair("bias_deg", config.bias_deg, lo=0.0, hi=60.0)
+    c["noise_deg"] = check_number("noise_deg", config.noise_deg, lo=0.0, hi=60.0)
     dof = config.noise_dof
     if isinstance(dof, bool) or not isinstance(dof, (int, np.integer)) or not (dof == 0 or 3 <= dof <= 100):
         raise ValueError(f"noise_dof must be an integer in [3, 100] (Student-t) or 0 (Gaussian), got {dof!r}")
     c["noise_dof"] = int(dof)
-    c["noise_corr_s"] = _finite("noise_corr_s", config.noise_corr_s, lo=0.0, hi=5.0)
+    c["noise_corr_s"] = check_number("noise_corr_s", config.noise_corr_s, lo=0.0, hi=5.0)
     return DyadicConfig(**c)
 
 
@@ -408,20 +378,6 @@ def _resolve(preset) -> DyadicConfig:
     if isinstance(preset, str):
         return _check_config(dyadic_config(preset))
     raise ValueError(f"preset must be a preset name {PRESETS} or a DyadicConfig, got {type(preset).__name__}")
-
-
-def _check_timing(duration_s, fps, max_frames: int = 10_000_000) -> tuple[int, float]:
-    fps = _finite("fps", fps, lo=0.0, lo_open=True)
-    duration_s = _finite("duration_s", duration_s, lo=0.0, lo_open=True)
-    num_frames = int(round(duration_s * fps))
-    if num_frames < 2:
-        raise ValueError(
-            f"duration_s · fps must give at least 2 frames, got duration_s={duration_s!r}, fps={fps!r} "
-            f"({num_frames} frames)"
-        )
-    if num_frames > max_frames:
-        raise ValueError(f"duration_s · fps gives {num_frames} frames; at most {max_frames:,} per recording")
-    return num_frames, fps
 
 
 # ---------------------------------------------------------------------------
@@ -699,7 +655,7 @@ def simulate_dyadic(
     """
     check_key(key)
     config = _resolve(preset)
-    num_frames, fps = _check_timing(duration_s, fps)
+    num_frames, fps = check_frames(duration_s, fps)
     arrays = _simulate_one(key, config=config, num_frames=num_frames, fps=fps)
     return DyadicRecording(**arrays, fps=fps, preset=config.preset, config=config)
 
@@ -720,10 +676,9 @@ def simulate_dyadic_sessions(
     as in :func:`simulate_dyadic`.
     """
     check_key(key)
-    if isinstance(num_sessions, bool) or not isinstance(num_sessions, (int, np.integer)) or num_sessions < 1:
-        raise ValueError(f"num_sessions must be a positive integer, got {num_sessions!r}")
+    num_sessions = check_int("num_sessions", num_sessions)
     config = _resolve(preset)
-    num_frames, fps = _check_timing(duration_s, fps)
+    num_frames, fps = check_frames(duration_s, fps)
     keys = jax.random.split(key, int(num_sessions))
     arrays = _simulate_many(keys, config=config, num_frames=num_frames, fps=fps)
     return DyadicRecording(**arrays, fps=fps, preset=config.preset, config=config)

@@ -45,7 +45,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgaze._checks import check_key
+from jaxgaze._checks import check_int, check_key, check_number
 from jaxgaze.facial.face_model import R_OPTICAL_FROM_FRONTAL, Hypotheses, generic_face
 from jaxgaze.facial.spatial import fit_spatial_model
 from jaxgaze.geometry import head_pose_to_rotation
@@ -107,15 +107,12 @@ def simulate_faces(
         ValueError: bad key, count, view or ``num_hypotheses`` (< 1).
     """
     seed = check_key(key)
-    if isinstance(num_faces, bool) or not isinstance(num_faces, (int, np.integer)) or num_faces < 1:
-        raise ValueError(f"num_faces must be a positive integer, got {num_faces!r}")
+    check_int("num_faces", num_faces)
     if view not in ("frontal", "profile", "mixed"):
         raise ValueError(f"view must be 'frontal', 'profile' or 'mixed', got {view!r}")
-    if isinstance(num_hypotheses, bool) or not isinstance(num_hypotheses, (int, np.integer)) or num_hypotheses < 1:
-        raise ValueError(f"num_hypotheses must be a positive integer, got {num_hypotheses!r}")
-    for name, value in (("shape_sd", shape_sd), ("point_sd", point_sd)):
-        if not (np.isfinite(value) and value >= 0):
-            raise ValueError(f"{name} must be a finite number ≥ 0, got {value!r}")
+    check_int("num_hypotheses", num_hypotheses)
+    check_number("shape_sd", shape_sd, lo=0.0)
+    check_number("point_sd", point_sd, lo=0.0)
     rng = np.random.default_rng([int(x) for x in seed])
     n, H = int(num_faces), int(num_hypotheses)
 

@@ -2,7 +2,7 @@
 (Kellnhofer et al. 2019, Sec. 4: the 10%/90% quantile loss).
 
 People stand in front of one camera; each frame each looks somewhere with a true gaze direction.
-The tool reports Gaze360's eye-frame angles (see :mod:`jaxgaze.io.gaze360`) with an error drawn
+The tool reports Gaze360's eye-frame angles (see :mod:`jaxgaze.io.tools.gaze360`) with an error drawn
 per angle from ``N(0, σ²)``, ``σ = var / z₀.₉``, ``var`` uniform per ray in ``var_range_deg``: exactly
 what a well-calibrated Gaze360 claims. The eye frame is built here on its own (``E_x = up × E_z``
 normalised, ``E_y = E_z × E_x``), as an independent check of the reader's.

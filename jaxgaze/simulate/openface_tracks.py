@@ -99,7 +99,7 @@ def simulate_openface_tracks(key, recording: DyadicRecording, *, gaze_sd: float,
         key: a single ``jax.random`` key (noise, dropouts and slot order).
         recording: from :func:`~jaxgaze.simulate.simulate_dyadic`.
         gaze_sd: per-axis sd (radians) of the measured gaze's tangent offset; pass the reader's
-            bandwidth (e.g. ``jaxgaze.io.openface.DEFAULT_BANDWIDTH_OPENFACE``) for calibrated rays.
+            bandwidth (e.g. ``jaxgaze.io.tools.openface.DEFAULT_BANDWIDTH_OPENFACE``) for calibrated rays.
         distance_m: camera distance from the midpoint of the two people's eyes.
         max_face_angle_deg: the tracker loses a face turned farther than this from the camera.
         dropout_rate_hz, dropout_s: random tracker losses per person: rate, and range of lengths.

@@ -65,9 +65,9 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from jaxgaze._checks import check_int, check_key, check_number
 from jaxgaze.geometry import axis_angle_to_rotation_matrix, orthonormal_basis, unit
 from jaxgaze.rays import GazeRays
 from jaxgaze.simulate._random import Pool, smooth
@@ -182,26 +182,15 @@ def _resolve(preset, num_frames, eye_in_head, head_noise) -> SceneConfig:
     if head_noise is not None:
         config = config._replace(head_noise=head_noise)
 
-    frames = config.num_frames
-    if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
-        raise ValueError(f"num_frames must be a positive integer, got {frames!r}")
-    values = {}
-    for field in ("eye_in_head", "head_noise", "fps"):
-        value = getattr(config, field)
-        try:
-            values[field] = float(value)
-        except (TypeError, ValueError):
-            values[field] = float("nan")
-        if not (math.isfinite(values[field]) and values[field] >= 0):
-            raise ValueError(f"{field} must be a finite number ≥ 0, got {value!r}")
+    frames = check_int("num_frames", config.num_frames)
+    values = {field: check_number(field, getattr(config, field), lo=0.0) for field in ("eye_in_head", "head_noise")}
+    values["fps"] = check_number("fps", config.fps, lo=0.5)
     if math.hypot(values["eye_in_head"], values["head_noise"]) <= 0:
         raise ValueError(
             "eye_in_head and head_noise are both 0: the ray bandwidth sqrt(eye_in_head² + head_noise²) "
             "must be positive"
         )
-    if values["fps"] < 0.5:
-        raise ValueError(f"fps must be at least 0.5 frames per second, got {config.fps!r}")
-    return config._replace(num_frames=int(frames), **values)
+    return config._replace(num_frames=frames, **values)
 
 
 # ---------------------------------------------------------------------------
@@ -509,8 +498,7 @@ def simulate_scene(
     Returns:
         :class:`Scene` whose rays carry bandwidth ``sqrt(h_e² + σ_h²)``.
     """
-    if isinstance(key, (int, np.integer)) or not hasattr(key, "shape"):
-        raise ValueError(f"key must be a jax.random key such as jax.random.key(0), got {type(key).__name__}")
+    check_key(key)
     config = _resolve(preset, num_frames, eye_in_head, head_noise)
     origins, directions, targets, attending, foci, valid, focus, phase = _simulate_arrays(
         key, config.eye_in_head, config.head_noise, preset=config.preset, num_frames=config.num_frames, fps=config.fps

@@ -103,7 +103,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 from scipy.signal import lfilter
 
-from jaxgaze._checks import check_key
+from jaxgaze._checks import check_frames, check_int, check_int_pair, check_key, check_number, check_pair
 from jaxgaze.geometry import direction_to_yaw_pitch, yaw_pitch_to_direction
 from jaxgaze.headpose.features import head_pose_features
 
@@ -313,7 +313,7 @@ def project_optical_to_image(points_optical, focal_px: float) -> np.ndarray:
         raise ValueError("points_optical contains NaN or inf")
     if np.any(p[..., 2] <= 0):
         raise ValueError("points_optical must lie in front of the camera (z > 0)")
-    f = _finite("focal_px", focal_px, lo=0.0, lo_open=True)
+    f = check_number("focal_px", focal_px, lo=0.0, lo_open=True)
     return np.stack(
         [f * p[..., 0] / p[..., 2] + IMAGE_WIDTH / 2, f * p[..., 1] / p[..., 2] + IMAGE_HEIGHT / 2], axis=-1
     )
@@ -323,58 +323,35 @@ def project_optical_to_image(points_optical, focal_px: float) -> np.ndarray:
 # Validation
 
 
-def _finite(name, value, *, lo=None, hi=None, lo_open=False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    if lo is not None and (value <= lo if lo_open else value < lo):
-        raise ValueError(f"{name} must be {'>' if lo_open else '≥'} {lo}, got {value!r}")
-    if hi is not None and value > hi:
-        raise ValueError(f"{name} must be ≤ {hi}, got {value!r}")
-    return value
-
-
-def _range(name, pair, *, lo=None, hi=None) -> tuple[float, float]:
-    if not isinstance(pair, (tuple, list)) or len(pair) != 2:
-        raise ValueError(f"{name} must be a (lo, hi) pair, got {pair!r}")
-    a = _finite(f"{name}[0]", pair[0], lo=lo, hi=hi)
-    b = _finite(f"{name}[1]", pair[1], lo=lo, hi=hi)
-    if a > b:
-        raise ValueError(f"{name} must have lo ≤ hi, got {pair!r}")
-    return (a, b)
-
-
 def _check_config(config) -> TabletopConfig:
     if config is None:
         return _DEFAULT_CONFIG
     if not isinstance(config, TabletopConfig):
         raise TypeError(f"config must be a TabletopConfig or None, got {type(config).__name__}")
     c = {}
-    c["focal_px"] = _range("focal_px", config.focal_px, lo=50.0, hi=5000.0)
-    c["distance_m"] = _range("distance_m", config.distance_m, lo=0.5, hi=5.0)
-    c["head_lateral_m"] = _range("head_lateral_m", config.head_lateral_m, lo=-1.0, hi=1.0)
-    c["head_above_table_m"] = _range("head_above_table_m", config.head_above_table_m, lo=0.1, hi=1.5)
-    c["camera_above_table_m"] = _range("camera_above_table_m", config.camera_above_table_m, lo=0.01, hi=1.5)
-    c["object_size_m"] = _range("object_size_m", config.object_size_m, lo=0.005, hi=0.5)
-    c["object_spacing_m"] = _range("object_spacing_m", config.object_spacing_m, lo=0.01, hi=2.0)
-    c["object_distance_m"] = _range("object_distance_m", config.object_distance_m, lo=0.05)
-    c["image_margin_px"] = _finite("image_margin_px", config.image_margin_px, lo=0.0, hi=100.0)
-    c["dwell_s"] = _range("dwell_s", config.dwell_s, lo=0.01)
-    c["yaw_gain"] = _range("yaw_gain", config.yaw_gain, lo=0.0, hi=1.5)
-    c["pitch_gain"] = _range("pitch_gain", config.pitch_gain, lo=0.0, hi=1.5)
-    c["dead_zone"] = _finite("dead_zone", config.dead_zone, lo=0.0, hi=1.0)
-    c["yaw_offset_deg"] = _finite("yaw_offset_deg", config.yaw_offset_deg, lo=0.0, hi=30.0)
-    c["pitch_offset_deg"] = _range("pitch_offset_deg", config.pitch_offset_deg, lo=-30.0, hi=30.0)
-    c["roll_offset_deg"] = _finite("roll_offset_deg", config.roll_offset_deg, lo=0.0, hi=30.0)
-    c["roll_coupling"] = _finite("roll_coupling", config.roll_coupling, lo=0.0, hi=1.0)
-    c["head_lag_s"] = _range("head_lag_s", config.head_lag_s, lo=0.0, hi=5.0)
-    c["head_sway_deg"] = _finite("head_sway_deg", config.head_sway_deg, lo=0.0, hi=20.0)
-    c["head_sway_m"] = _finite("head_sway_m", config.head_sway_m, lo=0.0, hi=0.3)
-    c["tracker_noise"] = _range("tracker_noise", config.tracker_noise, lo=0.0, hi=0.5)
-    c["near_threshold_m"] = _finite("near_threshold_m", config.near_threshold_m, lo=0.0)
-    c["central_threshold"] = _finite("central_threshold", config.central_threshold, lo=0.0, hi=math.pi)
+    c["focal_px"] = check_pair("focal_px", config.focal_px, lo=50.0, hi=5000.0)
+    c["distance_m"] = check_pair("distance_m", config.distance_m, lo=0.5, hi=5.0)
+    c["head_lateral_m"] = check_pair("head_lateral_m", config.head_lateral_m, lo=-1.0, hi=1.0)
+    c["head_above_table_m"] = check_pair("head_above_table_m", config.head_above_table_m, lo=0.1, hi=1.5)
+    c["camera_above_table_m"] = check_pair("camera_above_table_m", config.camera_above_table_m, lo=0.01, hi=1.5)
+    c["object_size_m"] = check_pair("object_size_m", config.object_size_m, lo=0.005, hi=0.5)
+    c["object_spacing_m"] = check_pair("object_spacing_m", config.object_spacing_m, lo=0.01, hi=2.0)
+    c["object_distance_m"] = check_pair("object_distance_m", config.object_distance_m, lo=0.05)
+    c["image_margin_px"] = check_number("image_margin_px", config.image_margin_px, lo=0.0, hi=100.0)
+    c["dwell_s"] = check_pair("dwell_s", config.dwell_s, lo=0.01)
+    c["yaw_gain"] = check_pair("yaw_gain", config.yaw_gain, lo=0.0, hi=1.5)
+    c["pitch_gain"] = check_pair("pitch_gain", config.pitch_gain, lo=0.0, hi=1.5)
+    c["dead_zone"] = check_number("dead_zone", config.dead_zone, lo=0.0, hi=1.0)
+    c["yaw_offset_deg"] = check_number("yaw_offset_deg", config.yaw_offset_deg, lo=0.0, hi=30.0)
+    c["pitch_offset_deg"] = check_pair("pitch_offset_deg", config.pitch_offset_deg, lo=-30.0, hi=30.0)
+    c["roll_offset_deg"] = check_number("roll_offset_deg", config.roll_offset_deg, lo=0.0, hi=30.0)
+    c["roll_coupling"] = check_number("roll_coupling", config.roll_coupling, lo=0.0, hi=1.0)
+    c["head_lag_s"] = check_pair("head_lag_s", config.head_lag_s, lo=0.0, hi=5.0)
+    c["head_sway_deg"] = check_number("head_sway_deg", config.head_sway_deg, lo=0.0, hi=20.0)
+    c["head_sway_m"] = check_number("head_sway_m", config.head_sway_m, lo=0.0, hi=0.3)
+    c["tracker_noise"] = check_pair("tracker_noise", config.tracker_noise, lo=0.0, hi=0.5)
+    c["near_threshold_m"] = check_number("near_threshold_m", config.near_threshold_m, lo=0.0)
+    c["central_threshold"] = check_number("central_threshold", config.central_threshold, lo=0.0, hi=math.pi)
     if c["camera_above_table_m"][1] >= c["head_above_table_m"][0]:
         raise ValueError(
             f"camera_above_table_m {config.camera_above_table_m!r} must stay below head_above_table_m "
@@ -388,24 +365,10 @@ def _check_config(config) -> TabletopConfig:
     return TabletopConfig(**c)
 
 
-def _positive_int(name, value, *, lo=1, hi=None) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name} must be an integer, got {value!r}")
-    if value < lo or (hi is not None and value > hi):
-        raise ValueError(f"{name} must be in [{lo}, {hi if hi is not None else '∞'}), got {value!r}")
-    return int(value)
-
-
 def _check_num_objects(num_objects) -> tuple[int, int]:
     if isinstance(num_objects, (tuple, list)):
-        if len(num_objects) != 2:
-            raise ValueError(f"num_objects must be an integer or an inclusive (lo, hi) pair, got {num_objects!r}")
-        lo = _positive_int("num_objects[0]", num_objects[0], lo=2, hi=12)
-        hi = _positive_int("num_objects[1]", num_objects[1], lo=2, hi=12)
-        if lo > hi:
-            raise ValueError(f"num_objects must have lo ≤ hi, got {num_objects!r}")
-        return lo, hi
-    n = _positive_int("num_objects", num_objects, lo=2, hi=12)
+        return check_int_pair("num_objects", num_objects, lo=2, hi=12)
+    n = check_int("num_objects", num_objects, lo=2, hi=12)
     return n, n
 
 
@@ -669,15 +632,9 @@ def simulate_tabletop_sessions(
             config of the wrong type.
     """
     seed = check_key(key)
-    num_people = _positive_int("num_people", num_people, hi=10_000)
-    sessions_per_person = _positive_int("sessions_per_person", sessions_per_person, hi=10_000)
-    fps = _finite("fps", fps, lo=0.0, lo_open=True)
-    duration_s = _finite("duration_s", duration_s, lo=0.0, lo_open=True)
-    num_frames = int(round(duration_s * fps))
-    if num_frames < 2:
-        raise ValueError(f"duration_s · fps must give at least 2 frames, got {duration_s!r} · {fps!r}")
-    if num_frames > 10_000_000:
-        raise ValueError(f"duration_s · fps gives {num_frames} frames; at most 10,000,000 per session")
+    num_people = check_int("num_people", num_people, hi=10_000)
+    sessions_per_person = check_int("sessions_per_person", sessions_per_person, hi=10_000)
+    num_frames, fps = check_frames(duration_s, fps)
     k_lo, k_hi = _check_num_objects(num_objects)
     c = _check_config(config)
 

@@ -14,6 +14,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
+from jaxgaze._checks import check_int
 from jaxgaze.simulate.render import render_tabletop_scene
 from jaxgaze.simulate.tabletop import IMAGE_HEIGHT, IMAGE_WIDTH, TabletopSession
 from jaxgaze.geometry import head_pose_to_rotation, rotation_to_head_pose
@@ -123,19 +124,13 @@ def render_tabletop_video(
     """
     if not isinstance(session, TabletopSession):
         raise TypeError(f"session must be a TabletopSession, got {type(session).__name__}")
-    if isinstance(scale, bool) or not isinstance(scale, (int, np.integer)) or not 1 <= scale <= 16:
-        raise ValueError(f"scale must be an integer from 1 to 16, got {scale!r}")
-    scale = int(scale)
+    scale = check_int("scale", scale, lo=1, hi=16)
     if pose not in ("true", "reported"):
         raise ValueError(f"pose must be 'true' or 'reported', got {pose!r}")
-    if isinstance(lead_in, bool) or not isinstance(lead_in, (int, np.integer)) or lead_in < 0:
-        raise ValueError(f"lead_in must be a non-negative integer, got {lead_in!r}")
-    lead_in = int(lead_in)
+    lead_in = check_int("lead_in", lead_in, lo=0)
     total = session.num_frames
     if num_frames is not None:
-        if isinstance(num_frames, bool) or not isinstance(num_frames, (int, np.integer)) or num_frames < 1:
-            raise ValueError(f"num_frames must be None or a positive integer, got {num_frames!r}")
-        total = min(total, int(num_frames))
+        total = min(total, check_int("num_frames", num_frames))
     head = CylinderHead() if head is None else head
 
     scene = render_tabletop_scene(session, key=key, condition=condition)

@@ -3,7 +3,7 @@
 :func:`write_aria_wearers` takes a :class:`~jaxgaze.simulate.Scene` (people, observed gaze rays,
 true concurrences), puts Aria glasses on some of its people and writes, per wearer, the
 ``general_eye_gaze.csv`` and ``closed_loop_trajectory.csv`` that MPS would give
-(:func:`jaxgaze.io.aria.write_aria`), so that :func:`jaxgaze.io.aria.read_aria` must recover the
+(:func:`jaxgaze.io.tools.aria.write_aria`), so that :func:`jaxgaze.io.tools.aria.read_aria` must recover the
 scene's rays.
 
 * Head: the CPF sits on the person's eyes, upright (no roll). It turns toward the true target
@@ -26,7 +26,7 @@ from typing import NamedTuple, Optional, Sequence
 import jax
 import numpy as np
 
-from jaxgaze.io.aria import ARIA_FPS, write_aria
+from jaxgaze.io.tools.aria import ARIA_FPS, write_aria
 from jaxgaze.io.rays import stack_rays
 from jaxgaze.poses import camera_poses
 from jaxgaze.simulate.scenes import Scene
@@ -50,7 +50,7 @@ SIMULATED_T_DEVICE_CPF.setflags(write=False)
 class AriaWearers(NamedTuple):
     """Simulated MPS wearer folders and their truth.
 
-    ``folders``: one per wearer (pass them to :func:`~jaxgaze.io.aria.read_aria`); ``persons``: the
+    ``folders``: one per wearer (pass them to :func:`~jaxgaze.io.tools.aria.read_aria`); ``persons``: the
     folder names; ``people``: each wearer's index in the source scene; ``scene``: the scene restricted
     to the wearers (rays, targets, foci; ``concurrence_valid`` where ≥ 2 wearers look);
     ``T_device_cpf``, ``fps``, ``start_ns``: what reading them back needs.

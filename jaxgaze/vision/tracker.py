@@ -49,6 +49,7 @@ import lineax as lx
 import optimistix as optx
 
 from jaxgaze.geometry import axis_angle_to_rotation_matrix, rotation_to_head_pose
+from jaxgaze.results import RESULTS, code, from_optimistix
 from jaxgaze.vision.head_model import (
     CylinderHead,
     distance_for_width_px,
@@ -79,7 +80,10 @@ class HeadTrack(NamedTuple):
             visible points after the update; 0 on an initialisation, NaN while lost.
         reinitialised: ``(T,)`` True where the head was (re)placed on a detected face
             (not frame 0) or the range check fired.
-        converged: ``(T,)`` True where every least-squares solve stopped on its tolerance.
+        result: ``(T,)`` per frame, a :class:`~jaxgaze.results.RESULTS` item (read it with
+            :func:`jaxgaze.succeeded`): ``successful`` where every least-squares solve stopped on its
+            tolerance (or the head was placed on a detected face), the first failed solve's code
+            (through :func:`~jaxgaze.results.from_optimistix`) otherwise, and ``lost`` while lost.
         R_optical_from_frontal: ``(T, 3, 3)`` the frontal frame the pose is relative to.
     """
 
@@ -87,7 +91,7 @@ class HeadTrack(NamedTuple):
     translation: np.ndarray
     residual: np.ndarray
     reinitialised: np.ndarray
-    converged: np.ndarray
+    result: RESULTS
     R_optical_from_frontal: np.ndarray
 
 
@@ -205,13 +209,12 @@ def _linear_solver():
 def _solve(params, args, max_steps):
     solver = optx.LevenbergMarquardt(rtol=1e-3, atol=1e-4, linear_solver=_linear_solver())
     sol = optx.least_squares(_residuals, solver, params, args=args, max_steps=max_steps, throw=False)
-    ok = sol.result == optx.RESULTS.successful
-    return jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value, params), ok
+    return jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value, params), from_optimistix(sol.result)
 
 
 @jax.jit(static_argnames=("max_steps", "use_reference"))
 def _update(prev, cur, R, t, points_head, normals_head, ref_values, ref_weights, focal, centre, *, max_steps, use_reference):
-    """One frame: ``(R_new, t_new, residual, converged)``.
+    """One frame: ``(R_new, t_new, residual, result)``, ``result`` the first failed solve's code.
 
     ``prev``/``cur`` are pyramids (tuples, fine first). ``ref_values``/``ref_weights``
     are the first frame's template, used when ``use_reference``.
@@ -221,14 +224,14 @@ def _update(prev, cur, R, t, points_head, normals_head, ref_values, ref_weights,
     normals = normals_head @ R.T
     weight = _visibility(points, normals, focal, centre, size)
     params = jnp.zeros(6, _float())
-    converged = jnp.array(True)
+    result = RESULTS.successful
     for level in reversed(range(len(prev))):
         scale = 0.5**level
         rows, cols = _project(points, focal, centre, scale)
         template = _sample(prev[level], rows, cols)
         args = (points, t, template, jnp.sqrt(weight), cur[level], focal, centre, scale)
-        params, ok = _solve(params, args, max_steps)
-        converged &= ok
+        params, level_result = _solve(params, args, max_steps)
+        result = RESULTS.where(result == RESULTS.successful, level_result, result)
 
     R_new = axis_angle_to_rotation_matrix(params[:3]) @ R
     t_new = t + _TAU_SCALE * params[3:]
@@ -238,9 +241,10 @@ def _update(prev, cur, R, t, points_head, normals_head, ref_values, ref_weights,
         w_ref = ref_weights * _visibility(moved, normals_head @ R_new.T, focal, centre, size)
         enough = jnp.sum(w_ref) > 0.25 * jnp.sum(ref_weights) + 1e-6  # enough of the first face still in view
         args = (moved, t_new, ref_values, jnp.sqrt(w_ref), cur[0], focal, centre, 1.0)
-        refined, ok = _solve(jnp.zeros(6, _float()), args, max_steps)
+        refined, refined_result = _solve(jnp.zeros(6, _float()), args, max_steps)
         refined = jnp.where(enough, refined, jnp.zeros(6, _float()))
-        converged &= ok | ~enough
+        refined_result = RESULTS.where(enough, refined_result, RESULTS.successful)
+        result = RESULTS.where(result == RESULTS.successful, refined_result, result)
         R_new = axis_angle_to_rotation_matrix(refined[:3]) @ R_new
         t_new = t_new + _TAU_SCALE * refined[3:]
 
@@ -250,7 +254,7 @@ def _update(prev, cur, R, t, points_head, normals_head, ref_values, ref_weights,
     rows, cols = _project(points_head @ R_new.T + t_new, focal, centre, 1.0)
     diff = jnp.abs(_sample(cur[0], rows, cols) - template)
     residual = jnp.sum(weight * diff) / jnp.maximum(jnp.sum(weight), 1e-6)
-    return R_new, t_new, residual, converged
+    return R_new, t_new, residual, result
 
 
 @jax.jit
@@ -330,7 +334,8 @@ def track_head(
     points_head, normals_head = (jnp.asarray(x, _float()) for x in surface_grid(head, *grid))
     ranges = np.radians(TRACKED_RANGE_DEG)
 
-    rows = []  # (pose, translation, residual, reinitialised, converged, R_optical_from_frontal)
+    rows = []  # (pose, translation, residual, reinitialised, result code, R_optical_from_frontal)
+    ok, lost = int(code(RESULTS.successful)), int(code(RESULTS.lost))
     shape = None
     prev = None
     state = None  # (R_optical_from_head, t, R_optical_from_frontal) or None when lost
@@ -371,18 +376,18 @@ def track_head(
                     raise ValueError("no face found in frames[0] to initialise the head tracker; pass initial_box")
             state = initialise(box)
             ref = reference_template(pyr[0], state)
-            rows.append((np.zeros(3), np.asarray(state[1], float), 0.0, False, True, state[2]))
+            rows.append((np.zeros(3), np.asarray(state[1], float), 0.0, False, ok, state[2]))
         elif state is None:  # lost: look for a face again
             box = _detected_box(detector, frame)
             if box is None:
-                rows.append((nan3, nan3, np.nan, False, False, np.full((3, 3), np.nan)))
+                rows.append((nan3, nan3, np.nan, False, lost, np.full((3, 3), np.nan)))
             else:
                 state = initialise(box)
                 ref = reference_template(pyr[0], state)
-                rows.append((np.zeros(3), np.asarray(state[1], float), 0.0, True, True, state[2]))
+                rows.append((np.zeros(3), np.asarray(state[1], float), 0.0, True, ok, state[2]))
         else:
             R, t, Rf = state
-            R, t, residual, converged = _update(
+            R, t, residual, result = _update(
                 prev, pyr, R, t, points_head, normals_head, ref[0], ref[1], focal_j, centre,
                 max_steps=int(max_steps), use_reference=reference == "first",
             )
@@ -390,26 +395,26 @@ def track_head(
             pose = np.array([pitch, yaw, roll], dtype=float)
             if np.all(np.abs(pose) <= ranges) and np.all(np.isfinite(pose)):
                 state = (R, t, Rf)
-                rows.append((pose, np.asarray(t, float), float(residual), False, bool(converged), Rf))
+                rows.append((pose, np.asarray(t, float), float(residual), False, int(code(result)), Rf))
             else:
                 box = _detected_box(detector, frame)
                 if box is None:
                     state = None
-                    rows.append((nan3, nan3, np.nan, True, False, np.full((3, 3), np.nan)))
+                    rows.append((nan3, nan3, np.nan, True, lost, np.full((3, 3), np.nan)))
                 else:
                     state = initialise(box)
                     ref = reference_template(pyr[0], state)
-                    rows.append((np.zeros(3), np.asarray(state[1], float), 0.0, True, True, state[2]))
+                    rows.append((np.zeros(3), np.asarray(state[1], float), 0.0, True, ok, state[2]))
         prev = pyr
 
     if not rows:
         raise ValueError("frames is empty: nothing to track")
-    pose, translation, residual, reinit, converged, Rf = zip(*rows)
+    pose, translation, residual, reinit, codes, Rf = zip(*rows)
     return HeadTrack(
         pose=np.stack(pose),
         translation=np.stack(translation),
         residual=np.asarray(residual, float),
         reinitialised=np.asarray(reinit, bool),
-        converged=np.asarray(converged, bool),
+        result=jax.tree.unflatten(jax.tree.structure(RESULTS.successful), [np.asarray(codes, np.int32)]),
         R_optical_from_frontal=np.stack(Rf),
     )

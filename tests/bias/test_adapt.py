@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from jaxgaze.bias import BIAS_FRAME_COLUMNS, BiasAdaptation, BiasInputError, SpeechSegments, adapt_bias
+from jaxgaze.bias import BiasAdaptation, BiasInputError, SpeechSegments, adapt_bias
+from jaxgaze.bias.adapt import BIAS_FRAME_COLUMNS
 from jaxgaze.cli import main
 from jaxgaze.io.bias_report import bias_record
 from jaxgaze.io.gaze import read_gaze_csv

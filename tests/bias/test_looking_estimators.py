@@ -34,7 +34,7 @@ from jaxgaze.bias.looking import (
     target_direction_head,
 )
 from jaxgaze.geometry import axis_angle_to_rotation_matrix, wrap_angle
-from jaxgaze.results import RESULTS, FitError
+from jaxgaze.results import RESULTS, FitError, succeeded
 
 DEG = math.pi / 180
 CHI2_2DOF_90 = -2 * math.log(0.1)  # 90% quantile of χ²(2)
@@ -435,10 +435,10 @@ def test_bayes_posterior_objects(bayes_fit):
     assert est.samples["bias"].shape == (DRAWS, 2)
     assert est.samples["responsibilities"].shape == (DRAWS, 60)
     np.testing.assert_allclose(est.bias, est.samples["bias"].mean(0), rtol=1e-6)
-    assert est.posterior.posterior["bias"].shape == (1, DRAWS, 2)
-    assert {"ess_bulk", "r_hat", "mean", "sd"} <= set(est.summary.columns)
-    assert est.summary.loc["bias[yaw]", "ess_bulk"] > 50
-    assert int(est.posterior.sample_stats["diverging"].sum()) <= 3
+    assert est.sampler.idata.posterior["bias"].shape == (1, DRAWS, 2)
+    assert {"ess_bulk", "r_hat", "mean", "sd"} <= set(est.sampler.summary.columns)
+    assert est.sampler.summary.loc["bias[yaw]", "ess_bulk"] > 50
+    assert int(est.sampler.idata.sample_stats["diverging"].sum()) <= 3
     # posterior draws feed looking_probability
     targets = gaze_angles_to_direction(jnp.array([[0.0, 0.0], [0.09, -0.14], [0.5, 0.5]]))
     p = looking_probability(jnp.zeros((3, 2)), targets, est.samples["bias"])
@@ -447,14 +447,14 @@ def test_bayes_posterior_objects(bayes_fit):
 
 def test_bayes_fit_reports_its_mixing(bayes_fit, bayes_data):
     est = bayes_fit
-    assert est.succeeded and est.result == RESULTS.successful
-    d = est.diagnostics
-    assert d["chains"] == 1 and d["max_rhat"] < 1.05 and d["min_ess_bulk"] >= 100 and d["acceptance_rate"] > 0.5
-    assert {"mean", "sd", "hdi_5%", "hdi_95%", "ess_bulk", "ess_tail", "r_hat"} <= set(est.summary.columns)
-    assert np.all(np.isfinite(est.summary["r_hat"]))  # split r-hat: defined for one chain
-    row = est.summary.loc["bias[yaw]"]
+    assert succeeded(est) and est.result == RESULTS.successful
+    d = est.sampler.diagnostics
+    assert d.chains == 1 and d.max_rhat < 1.05 and d.min_ess_bulk >= 100 and d.acceptance_rate > 0.5
+    assert {"mean", "sd", "hdi_5%", "hdi_95%", "ess_bulk", "ess_tail", "r_hat"} <= set(est.sampler.summary.columns)
+    assert np.all(np.isfinite(est.sampler.summary["r_hat"]))  # split r-hat: defined for one chain
+    row = est.sampler.summary.loc["bias[yaw]"]
     assert row["hdi_5%"] <= TRUE_BIAS[0] <= row["hdi_95%"]
-    assert estimate_bias(bayes_data[0], "lmeds").succeeded
+    assert succeeded(estimate_bias(bayes_data[0], "lmeds"))
 
 
 def test_a_bias_sampler_that_never_moved_is_a_failure(bayes_data, monkeypatch):
@@ -474,9 +474,9 @@ def test_a_bias_sampler_that_never_moved_is_a_failure(bayes_data, monkeypatch):
     monkeypatch.setattr(estimators, "sample_nuts", stuck)
     offsets, _ = bayes_data
     est = estimate_bias(offsets, "bayes", num_warmup=DRAWS, num_samples=DRAWS)
-    assert not est.succeeded and est.result == RESULTS.not_mixed
-    assert est.diagnostics["min_ess_bulk"] == 0 and np.isnan(est.diagnostics["max_rhat"])
-    assert est.diagnostics["divergences"] == DRAWS
+    assert not succeeded(est) and est.result == RESULTS.not_mixed
+    assert est.sampler.diagnostics.min_ess_bulk == 0 and np.isnan(est.sampler.diagnostics.max_rhat)
+    assert est.sampler.diagnostics.divergences == DRAWS
     with pytest.raises(FitError, match="did not mix"):
         estimate_bias(offsets, "bayes", num_warmup=DRAWS, num_samples=DRAWS, throw=True)
 
@@ -506,7 +506,7 @@ def test_bayes_coverage_over_synthetic_people():
     keys = jax.random.split(jax.random.key(15), people)
     truths = np.radians(10.0) * np.asarray(jax.random.normal(jax.random.key(16), (people, 2)))
     offsets = np.stack([synthetic_offsets(k, b)[0] for k, b in zip(keys, truths)])
-    values, stats = sample_bias_posterior(jax.random.key(17), offsets, num_warmup=DRAWS, num_samples=DRAWS)
+    values, stats = sample_bias_posterior(offsets, key=jax.random.key(17), num_warmup=DRAWS, num_samples=DRAWS)
     draws = np.asarray(values["bias"])[:, 0]  # (people, draws, 2)
     assert draws.shape == (people, DRAWS, 2)
     mean = draws.mean(1)

@@ -23,7 +23,7 @@ def _posterior(result=RESULTS.successful, num_draws=4000):
     draws = MEAN + SD * rng.standard_normal((num_draws, 3))
     samples = {"eye_center": draws, "direction": np.tile(DIRECTION, (num_draws, 1)),
                "bandwidth": np.full(num_draws, 0.03), "inlier_probability": np.full((num_draws, 5), 0.9)}
-    return CalibrationPosterior(idata=None, summary=None, eye_center=draws.mean(0), direction=DIRECTION,
+    return CalibrationPosterior(sampler=None, eye_center=draws.mean(0), direction=DIRECTION,
                                 bandwidth=0.03, samples=samples, predictive_check={}, result=result)
 
 

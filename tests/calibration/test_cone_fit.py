@@ -15,10 +15,10 @@ from jaxgaze.calibration import (
     ConeCalibration,
     calibrate_cone,
     points_in_camera_frame,
-    solve_cone_apex,
 )
+from jaxgaze.calibration.cone_fit import solve_cone_apex
 from jaxgaze.geometry import angle_between, axis_angle_to_rotation_matrix, yaw_pitch_to_direction
-from jaxgaze.results import RESULTS
+from jaxgaze.results import RESULTS, FitError, succeeded
 
 M = 60  # points of regard per wearer
 WEARERS = 20
@@ -290,13 +290,13 @@ def collinear_through_origin():
 
 def test_rejects_points_collinear_through_the_camera_centre(collinear_through_origin):
     with pytest.raises(ValueError, match="collinear through the camera centre"):
-        calibrate_cone(collinear_through_origin, key=jax.random.PRNGKey(0))
+        calibrate_cone(collinear_through_origin, key=jax.random.PRNGKey(0), throw=True)
 
 
 def test_rejects_points_behind_the_camera(one_wearer):
     y = one_wearer[0] * np.array([-1.0, 1.0, 1.0])  # mirrored: +x is backward
     with pytest.raises(ValueError, match="behind the camera"):
-        calibrate_cone(y, key=jax.random.PRNGKey(0))
+        calibrate_cone(y, key=jax.random.PRNGKey(0), throw=True)
 
 
 def test_throw_false_returns_failure_codes(one_wearer, collinear_through_origin):
@@ -312,13 +312,13 @@ def test_throw_false_returns_failure_codes(one_wearer, collinear_through_origin)
     for code, pts in cases.items():
         cal = calibrate_cone(pts, key=key, throw=False)
         assert bool(cal.result == getattr(RESULTS, code)), (code, cal.message)
-        assert not bool(cal.succeeded)
+        assert not bool(succeeded(cal))
         for field in (cal.eye_center, cal.direction, cal.bandwidth, cal.alpha, cal.xi):
             assert np.all(np.isfinite(np.asarray(field)))
         np.testing.assert_array_equal(cal.direction, [1.0, 0.0, 0.0])
         assert float(cal.bandwidth) > 0
     with pytest.raises(ValueError, match="too few RANSAC inliers"):
-        calibrate_cone(cases["too_few_inliers"], key=key)
+        calibrate_cone(cases["too_few_inliers"], key=key, throw=True)
 
 
 def test_exactly_collinear_points_off_the_origin_are_degenerate():
@@ -327,7 +327,7 @@ def test_exactly_collinear_points_off_the_origin_are_degenerate():
     cal = calibrate_cone(y, key=jax.random.PRNGKey(0), throw=False)
     assert bool(cal.result == RESULTS.degenerate)
     with pytest.raises(ValueError, match="lie exactly on one line"):
-        calibrate_cone(y, key=jax.random.PRNGKey(0))
+        calibrate_cone(y, key=jax.random.PRNGKey(0), throw=True)
 
 
 def test_works_under_vmap_and_reports_codes(wearers):
@@ -344,9 +344,23 @@ def test_an_eye_centre_metres_from_the_camera_is_implausible(one_wearer):
     y = one_wearer[0]
     key = jax.random.PRNGKey(0)
     good = calibrate_cone(y, key=key)
-    assert bool(good.succeeded) and float(good.eye_distance) < MAX_APEX_DISTANCE
+    assert bool(succeeded(good)) and float(good.eye_distance) < MAX_APEX_DISTANCE
     far = calibrate_cone(1000.0 * y, key=key, throw=False)
-    assert bool(far.result == RESULTS.implausible) and not bool(far.succeeded)
+    assert bool(far.result == RESULTS.implausible) and not bool(succeeded(far))
     assert float(far.eye_distance) > 100.0  # the estimate is kept (λ of eq. 2 is not scale-free: not 1000×)
     with pytest.raises(ValueError, match="physically implausible"):
-        calibrate_cone(1000.0 * y, key=key)
+        calibrate_cone(1000.0 * y, key=key, throw=True)
+
+
+def test_a_failed_fit_raises_with_what_throw_false_returns(one_wearer):
+    """``calibrate_cone`` defaults to ``throw=False``, like every fit; ``throw=True`` raises a FitError whose
+    ``fit`` is the calibration ``throw=False`` returns (nothing computed is thrown away)."""
+    y = 1000.0 * one_wearer[0]  # millimetres: an implausible eye centre
+    key = jax.random.PRNGKey(0)
+    quiet = calibrate_cone(y, key=key)
+    assert bool(quiet.result == RESULTS.implausible)
+    with pytest.raises(FitError, match="physically implausible") as raised:
+        calibrate_cone(y, key=key, throw=True)
+    assert isinstance(raised.value.fit, ConeCalibration) and bool(raised.value.result == RESULTS.implausible)
+    for got, want in zip(raised.value.fit, quiet):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))

@@ -7,7 +7,7 @@ import pytest
 
 import jaxgaze as jg
 from jaxgaze.calibration.posterior import MAX_EYE_OFFSET, calibrate_cone_posterior
-from jaxgaze.results import RESULTS, FitError
+from jaxgaze.results import RESULTS, FitError, succeeded
 from jaxgaze.cone import sample_points_of_regard
 
 TRUE_EYE = np.array([-0.08, 0.01, -0.10])
@@ -57,13 +57,13 @@ def test_credible_intervals_contain_truth(posterior):
 
 
 def test_diagnostics_and_predictive_check(posterior):
-    summary = posterior.summary
+    summary = posterior.sampler.summary
     assert {"mean", "sd", "hdi_5%", "hdi_95%", "ess_bulk", "ess_tail", "r_hat"} <= set(summary.columns)
     assert summary["ess_bulk"].min() > 50
     assert np.all(summary["r_hat"] < 1.05)  # split r-hat: defined for the one chain
-    assert posterior.succeeded and posterior.result == RESULTS.successful
-    assert posterior.diagnostics["chains"] == 1 and posterior.diagnostics["max_rhat"] < 1.05
-    assert "posterior" in posterior.idata.groups()
+    assert succeeded(posterior) and posterior.result == RESULTS.successful
+    assert posterior.sampler.diagnostics.chains == 1 and posterior.sampler.diagnostics.max_rhat < 1.05
+    assert "posterior" in posterior.sampler.idata.groups()
     assert 0.05 < posterior.predictive_check["p_value"] < 0.95
 
 
@@ -74,10 +74,10 @@ def test_a_sampler_that_never_moved_is_a_failure():
     """Started at the camera centre, a metre from the cone's apex, NUTS never accepts a step."""
     y = wearer_points(jax.random.key(0), eye=FAR_EYE)
     post = calibrate_cone_posterior(y, key=jax.random.key(1), num_warmup=300, num_samples=300)
-    assert post.result == RESULTS.not_mixed and not post.succeeded
-    d = post.diagnostics
-    assert d["acceptance_rate"] < 0.5 and d["min_ess_bulk"] == 0 and np.isnan(d["max_rhat"])
-    assert np.all(post.summary["ess_bulk"] == 0)  # arviz alone gives a constant chain the full ESS
+    assert post.result == RESULTS.not_mixed and not succeeded(post)
+    d = post.sampler.diagnostics
+    assert d.acceptance_rate < 0.5 and d.min_ess_bulk == 0 and np.isnan(d.max_rhat)
+    assert np.all(post.sampler.summary["ess_bulk"] == 0)  # arviz alone gives a constant chain the full ESS
     with pytest.raises(FitError, match="did not mix"):
         calibrate_cone_posterior(y, key=jax.random.key(1), num_warmup=300, num_samples=300, throw=True)
 

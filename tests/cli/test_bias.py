@@ -24,8 +24,8 @@ import pytest
 from tests.cli.helpers import assert_failed, run_main
 from scipy.spatial.transform import Rotation
 
-from jaxgaze.io.openface import OPENFACE_COLUMNS, openface_pose_and_gaze
-from jaxgaze.bias import BIAS_FRAME_COLUMNS
+from jaxgaze.io.tools.openface import OPENFACE_COLUMNS, openface_pose_and_gaze
+from jaxgaze.bias.adapt import BIAS_FRAME_COLUMNS
 from jaxgaze.cli import main
 from tests import helpers as zoo
 from jaxgaze.simulate import partner_camera_view
@@ -470,7 +470,7 @@ def test_bias_progress_bar_on_tty(dyad, tmp_path, capsys, monkeypatch):
 
     calls = []
 
-    def fake_posterior(key, offsets, mask=None, silent_offsets=None, **kwargs):
+    def fake_posterior(offsets, mask=None, silent_offsets=None, *, key, **kwargs):
         calls.append(kwargs)
         n, s = offsets.shape[0], 8
         bias = np.tile(np.radians(dyad["bias_deg"]), (1, s, 1))
@@ -494,7 +494,7 @@ def test_bias_progress_bar_on_tty(dyad, tmp_path, capsys, monkeypatch):
         lines = lines[-1:]
         assert len(lines) == 1 and lines[0].startswith("jaxgaze bias: the posterior failed: the sampler did not mix")
         assert "bulk ESS" in lines[0] and "--samples" in lines[0] and "RuntimeWarning" not in stderr
-    assert [c["progress_bar"] for c in calls] == [True, False]
+    assert [c["progress"] for c in calls] == [True, False]
     assert calls[0]["num_warmup"] == calls[0]["num_samples"] == 8
     record = json.loads(out.read_text())
     assert record["bias_deg"] == pytest.approx(dyad["bias_deg"].tolist(), abs=0.2)

@@ -428,6 +428,8 @@ def test_calibrate_posterior_written_only_with_the_json(session, tmp_path, capsy
     import pandas as pd
 
     import jaxgaze.calibration.posterior as calibration_posterior
+    from jaxgaze.nuts import MixingDiagnostics, SamplerReport
+    from jaxgaze.results import RESULTS
 
     def fake_posterior(points, **kwargs):
         idata = arviz.from_dict(posterior={"bandwidth": np.full((2, 5), 0.03)})
@@ -437,8 +439,9 @@ def test_calibrate_posterior_written_only_with_the_json(session, tmp_path, capsy
         eye = np.asarray(kwargs["init_eye_center"])  # draws around the point estimate: the two agree
         samples = {"eye_center": eye + 0.01 * np.random.default_rng(0).normal(size=(10, 3)),
                    "bandwidth": np.full(10, 0.03), "inlier_probability": np.ones((10, len(points)))}
+        sampler = SamplerReport(idata, RESULTS.successful, MixingDiagnostics(**diagnostics), summary)
         return calibration_posterior.CalibrationPosterior(
-            idata, summary, eye, np.asarray(kwargs["init_direction"]), 0.03, samples, {}, diagnostics=diagnostics)
+            sampler, eye, np.asarray(kwargs["init_direction"]), 0.03, samples, {})
 
     monkeypatch.setattr(calibration_posterior, "calibrate_cone_posterior", fake_posterior)
     out, post = tmp_path / "c.json", tmp_path / "p.nc"

@@ -471,12 +471,12 @@ def test_concurrences_units_caught_at_the_door(tmp_path, capsys):
     ("--members", "out.csv", "--out and --members must be different files"),
 ])
 def test_concurrences_bad_output_paths_fail_before_work(tmp_path, capsys, monkeypatch, option, name, words):
-    import jaxgaze.concurrence.modes
+    import jaxgaze.concurrence
 
     def no_work(*args, **kwargs):
         raise AssertionError("computed before checking the outputs")
 
-    monkeypatch.setattr(jaxgaze.concurrence.modes, "find_concurrences_over_frames", no_work)
+    monkeypatch.setattr(jaxgaze.concurrence, "find_concurrences_over_frames", no_work)
     src = write_csv(tmp_path / "rays.csv", scene_rows())
     status, stdout, stderr = run_main(capsys, ["concurrences", src, "--out", tmp_path / "out.csv",
                                                option, tmp_path / name])

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from jaxgaze.io import read_gaze_tool, read_rays_csv
-from jaxgaze.io.aria import read_aria
-from jaxgaze.io.gaze360 import read_gaze360
-from jaxgaze.io.l2cs import read_l2cs
-from jaxgaze.io.mediapipe import read_mediapipe
-from jaxgaze.io.pupil import read_neon, read_pupil
-from jaxgaze.io.xgaze import read_xgaze
+from jaxgaze.io.tools.aria import read_aria
+from jaxgaze.io.tools.gaze360 import read_gaze360
+from jaxgaze.io.tools.l2cs import read_l2cs
+from jaxgaze.io.tools.mediapipe import read_mediapipe
+from jaxgaze.io.tools.pupil import read_neon, read_pupil
+from jaxgaze.io.tools.xgaze import read_xgaze
 from jaxgaze.poses import camera_poses
 from jaxgaze.io.poses import write_pose_csv
 from tests.cli.helpers import assert_failed, run_main
@@ -53,7 +53,7 @@ def test_convert_writes_what_the_tools_reader_reads(tmp_path, capsys, name):
 
 
 def test_convert_openface_several_faces(tmp_path, capsys):
-    from jaxgaze.io.openface import read_openface_rays
+    from jaxgaze.io.tools.openface import read_openface_rays
 
     path = DATA / "openface_sample.csv"
     status, _, err = run_main(capsys, ["convert", "--from", "openface", path, "--out", tmp_path / "rays.csv"])

@@ -11,7 +11,7 @@ import os
 import pytest
 from tests.cli.helpers import run_main
 
-import jaxgaze.concurrence.modes
+import jaxgaze.concurrence
 import jaxgaze.plotting
 from jaxgaze.cli import demo, main
 from jaxgaze.concurrence import ConcurrenceOptions
@@ -46,7 +46,7 @@ def party(tmp_path_factory):
     """One run on the party scene, with a spy on the options the demo gives the concurrence search."""
     figure = tmp_path_factory.mktemp("demo") / "party.png"
     calls = []
-    search = jaxgaze.concurrence.modes.find_concurrences_over_frames
+    search = jaxgaze.concurrence.find_concurrences_over_frames
 
     def spy(rays, *args, **kwargs):
         calls.append((args, kwargs))
@@ -54,7 +54,7 @@ def party(tmp_path_factory):
 
     out, err = io.StringIO(), io.StringIO()
     with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        mp.setattr(jaxgaze.concurrence.modes, "find_concurrences_over_frames", spy)
+        mp.setattr(jaxgaze.concurrence, "find_concurrences_over_frames", spy)
         status = main(["demo", "--scene", "party", "--frames", "14", "--seed", "2", "--out", str(figure),
                        *CHUNK])
     return {"status": status, "stdout": out.getvalue(), "stderr": err.getvalue(), "figure": figure, "calls": calls}

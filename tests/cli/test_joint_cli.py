@@ -24,10 +24,10 @@ from tests.cli.helpers import assert_failed, run_main
 import jaxgaze.joint
 from jaxgaze.cli import main
 from jaxgaze.io.gaze import GAZE_COLUMNS
-from jaxgaze.io.openface import OPENFACE_COLUMNS
+from jaxgaze.io.tools.openface import OPENFACE_COLUMNS
 from jaxgaze.io.text import atomic_path
 from jaxgaze.poses import matrices_to_quaternions
-from jaxgaze.results import RESULTS
+from jaxgaze.results import RESULTS, succeeded
 
 FPS = 5.0
 NAMES = ("ann", "ben", "cat")
@@ -114,12 +114,12 @@ def test_joint_end_to_end(fitted, scene_files):
 
     scene, post = scene_files["scene"], fitted["posterior"]
     T, P = scene.present.shape
-    assert fitted["status"] == (0 if post.succeeded else 1)
+    assert fitted["status"] == (0 if succeeded(post) else 1)
     assert sorted(os.listdir(fitted["dir"])) == ["frames.csv", "joint.nc"]  # written either way, no temporary file
     lines = fitted["stderr"].splitlines()
     assert "Traceback" not in fitted["stderr"]
     assert lines[0].startswith("jaxgaze: warning: ") and "'dan'" in lines[0] and "--speaker-map" in lines[0]
-    if post.succeeded:
+    if succeeded(post):
         assert len(lines) == 1
     else:
         assert len(lines) == 2 and lines[1] == f"jaxgaze joint: {RESULTS[post.result]}"

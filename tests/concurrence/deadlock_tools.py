@@ -105,7 +105,8 @@ def lapack_calls(hlo_text: str, module: str = "") -> list[LapackCall]:
 def audit(code: str, timeout: float = 600.0) -> list[LapackCall]:
     """The LAPACK calls of every program that ``code`` compiles, run in a fresh CPU interpreter."""
     with tempfile.TemporaryDirectory() as dump:
-        env = dict(os.environ, JAX_PLATFORMS="cpu",
+        # no compilation cache: a program read from it is not compiled, so it would not be dumped
+        env = dict(os.environ, JAX_PLATFORMS="cpu", JAXGAZE_CACHE_DIR="off",
                    XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} --xla_dump_to={dump} --xla_dump_hlo_as_text".strip())
         done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=timeout)
         if done.returncode != 0:

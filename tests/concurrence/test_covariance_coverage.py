@@ -1,6 +1,6 @@
 """Honest concurrence covariances (issue 19, item 2): coverage of the 90 % region on a grid.
 
-Scenes come from a generator written here, independent of ``jaxgaze.simulate``:
+Scenes come from :mod:`jaxgaze.simulate.coverage`, a generator independent of the other simulators:
 1–3 groups of 4–8 people, each person 1.5–4 m from the group's target, and each
 gaze direction turned away from the target by a rotation whose angle components
 perpendicular to the direction are ``N(0, σ²)``. The grid is the noise
@@ -14,6 +14,7 @@ bandwidth and ~30 % with a bandwidth 2× too small.
 
 import math
 
+import jax
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
@@ -22,64 +23,18 @@ from scipy.stats import chi2, f, multivariate_t
 
 import jaxgaze as jg
 from jaxgaze.concurrence.metrics import coverage, match_over_frames, region_threshold
+from jaxgaze.simulate.coverage import MAX_PEOPLE, group_frames, turn_directions
 
 NOISES = (0.02, 0.05, 0.08)
 BANDWIDTH_FACTORS = (1.0, 0.5, 2.0)  # user's bandwidth / true noise
 FRAMES_PER_CELL = {0.02: 130, 0.05: 140, 0.08: 160}  # fewer frames have the right count at more noise
-MAX_PEOPLE = 24  # 3 groups of at most 8: every frame is padded to this, so one compilation serves the grid
 MIN_MODES = 225  # modes with the right count per cell: standard error ≤ 2 points at 90 %
-PRIOR_RANGE = 8.0  # the noise-scale prior: c within 8× of the bandwidth (jaxgaze.concurrence.modes)
-
-
-def _turn(rng, directions, sigma):
-    """Rotate unit ``directions`` (n, 3) by rotation vectors ``a u1 + b u2`` ⟂ each one, ``a, b ~ N(0, σ²)``."""
-    helper = np.where(np.abs(directions[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    u1 = np.cross(directions, helper)
-    u1 /= np.linalg.norm(u1, axis=1, keepdims=True)
-    u2 = np.cross(directions, u1)
-    a, b = rng.normal(0.0, sigma, (2, len(directions), 1))
-    axis_angle = a * u1 + b * u2
-    angle = np.linalg.norm(axis_angle, axis=1, keepdims=True)
-    axis = axis_angle / np.maximum(angle, 1e-300)
-    # Rodrigues' formula; the axis is perpendicular to the direction, so no (k·v) k term.
-    return np.cos(angle) * directions + np.sin(angle) * np.cross(axis, directions)
-
-
-def _scene(rng, sigma):
-    """Eyes (n, 3), noisy unit directions (n, 3), targets (g, 3) of one random scene."""
-    groups = int(rng.integers(1, 4))
-    targets = []
-    while len(targets) < groups:  # targets at least 2.5 m apart on the floor plan
-        t = np.array([rng.uniform(-4, 4), rng.uniform(-4, 4), rng.uniform(0.6, 1.6)])
-        if all(np.linalg.norm(t[:2] - s[:2]) > 2.5 for s in targets):
-            targets.append(t)
-    eyes, looks_at = [], []
-    for target in targets:
-        n = int(rng.integers(4, 9))
-        distance = rng.uniform(1.5, 4.0, n)  # eye to target, 3-D
-        azimuth = rng.uniform(0, 2 * np.pi, n)
-        height = rng.uniform(1.5, 1.8, n)
-        across = np.sqrt(distance**2 - (height - target[2]) ** 2)
-        eyes.append(np.stack([target[0] + across * np.cos(azimuth), target[1] + across * np.sin(azimuth), height], 1))
-        looks_at.append(np.broadcast_to(target, (n, 3)))
-    eyes, looks_at = np.concatenate(eyes), np.concatenate(looks_at)
-    exact = (looks_at - eyes) / np.linalg.norm(looks_at - eyes, axis=1, keepdims=True)
-    return eyes, _turn(rng, exact, sigma), np.array(targets)
+PRIOR_RANGE = 8.0  # the noise-scale prior: c within 8× of the bandwidth (jaxgaze.concurrence.laplace)
 
 
 def _frames(seed, sigma, frames):
     """``frames`` scenes padded to MAX_PEOPLE rays: origins, directions, ray mask, targets, target mask."""
-    rng = np.random.default_rng(seed)
-    origins = np.zeros((frames, MAX_PEOPLE, 3))
-    directions = np.tile([1.0, 0.0, 0.0], (frames, MAX_PEOPLE, 1))
-    mask = np.zeros((frames, MAX_PEOPLE), bool)
-    targets = np.zeros((frames, 3, 3))
-    target_mask = np.zeros((frames, 3), bool)
-    for t in range(frames):
-        eyes, dirs, tgt = _scene(rng, sigma)
-        origins[t, : len(eyes)], directions[t, : len(eyes)], mask[t, : len(eyes)] = eyes, dirs, True
-        targets[t, : len(tgt)], target_mask[t, : len(tgt)] = tgt, True
-    return origins, directions, mask, targets, target_mask
+    return group_frames(np.random.default_rng(seed), sigma, frames)
 
 
 def _cells():
@@ -87,7 +42,7 @@ def _cells():
 
 
 def _take(concurrences, frames):
-    return concurrences._replace(**{name: np.asarray(value)[frames] for name, value in concurrences._asdict().items()})
+    return jax.tree_util.tree_map(lambda a: np.asarray(a)[frames], concurrences)
 
 
 def _laplace_only(found, origins, directions, bandwidth):
@@ -185,7 +140,7 @@ def test_noise_scale_and_degrees_of_freedom_follow_the_closed_form():
         origins = np.stack([target[0] + distance * np.cos(azimuth), target[1] + distance * np.sin(azimuth),
                             np.full(people, 1.7)], 1)
         exact = (target - origins) / np.linalg.norm(target - origins, axis=1, keepdims=True)
-        directions = _turn(rng, exact, noise * bandwidth)
+        directions = turn_directions(rng, exact, noise * bandwidth)
         cases.append((origins, directions, bandwidth))
         pad = MAX_PEOPLE - people
         frames.append(jg.GazeRays(np.concatenate([origins, np.zeros((pad, 3))]).astype(np.float32),

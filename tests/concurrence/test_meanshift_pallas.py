@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import jaxgaze as jg
-from jaxgaze.concurrence.modes import _field_value, _xla_meanshift, ray_projector
+from jaxgaze.concurrence.field import xla_meanshift, field_value, ray_projector
 from jaxgaze.concurrence.meanshift_pallas import fused_meanshift
 
 ON_GPU = jax.default_backend() == "gpu"
@@ -38,7 +38,7 @@ def scene(num_rays, num_seeds, seed=0, dtype=np.float64):
 def test_fused_kernel_equals_xla_path_in_float64(x64, max_stretch):
     rays, seeds = scene(37, 150)
     proj = ray_projector(rays)
-    want = _xla_meanshift(proj, seeds, 1e-5, 60, max_stretch)
+    want = xla_meanshift(proj, seeds, 1e-5, 60, max_stretch)
     got = fused_meanshift(proj, seeds, 1e-5, max_iter=60, max_stretch=max_stretch, block_seeds=64, block_rays=16,
                           interpret=not ON_GPU)
     np.testing.assert_allclose(np.asarray(got[0]), np.asarray(want[0]), atol=1e-8)
@@ -51,13 +51,13 @@ def test_fused_kernel_float32_plain_steps_agree_and_climb():
     rays, seeds = scene(37, 150, seed=1, dtype=np.float32)
     proj = ray_projector(rays)
     with jax.default_matmul_precision("highest"):  # no TF32 in the reference on GPUs
-        want = _xla_meanshift(proj, seeds, 0.0, 12, 1)
+        want = xla_meanshift(proj, seeds, 0.0, 12, 1)
     got = fused_meanshift(proj, seeds, 0.0, max_iter=12, max_stretch=1, block_seeds=64, block_rays=16,
                           interpret=not ON_GPU)
     assert got[0].dtype == jnp.float32
     np.testing.assert_array_equal(np.asarray(got[1]), 12)  # tol = 0: every seed runs max_iter steps
     # float32 rounding moves seeds along flat ridges (single rays); the field value is what matters.
-    f = jax.vmap(lambda x: _field_value(proj, x))
+    f = jax.vmap(lambda x: field_value(proj, x))
     np.testing.assert_allclose(np.asarray(f(got[0])), np.asarray(f(want[0])), rtol=2e-3, atol=1e-6)
     assert np.all(np.asarray(f(got[0])) >= np.asarray(f(seeds)) * (1 - 1e-5))  # Theorem 1
 
@@ -70,7 +70,7 @@ def test_seed_behind_every_ray_stays_put_and_is_not_converged(x64):
     proj = ray_projector(rays)
     got = fused_meanshift(proj, seeds, 1e-4, max_iter=30, max_stretch=1, block_seeds=64, block_rays=16,
                           interpret=not ON_GPU)
-    want = _xla_meanshift(proj, seeds, 1e-4, 30, 1)
+    want = xla_meanshift(proj, seeds, 1e-4, 30, 1)
     np.testing.assert_array_equal(np.asarray(got[0][0]), [-50.0, 1.0, 2.0])
     assert not bool(got[2][0]) and not bool(want[2][0])
     np.testing.assert_allclose(np.asarray(got[0]), np.asarray(want[0]), atol=1e-8)

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 import jaxgaze as jg
-from jaxgaze.concurrence.modes import _meanshift_step, ray_projector
+from jaxgaze.concurrence.field import meanshift_step, ray_projector
 from jaxgaze.cone import sample_gaze_directions
 from jaxgaze.rays import UnitWarning, check_units
 
@@ -223,7 +223,7 @@ def _plain_trajectory(rays, seeds):
     proj = ray_projector(rays)
 
     def step(x, _):
-        x_new = jax.vmap(lambda y: _meanshift_step(proj, y)[0])(x)
+        x_new = jax.vmap(lambda y: meanshift_step(proj, y)[0])(x)
         return x_new, x_new
 
     _, path = jax.lax.scan(step, seeds, None, length=30)

@@ -21,12 +21,13 @@ from jaxgaze import GazeRays
 from jaxgaze.concurrence import (
     ConcurrenceStream,
     find_concurrences_over_frames,
-    modes,
     track_concurrences,
 )
+from jaxgaze.concurrence import frame, recording
+from jaxgaze.concurrence.options import ConcurrenceOptions
 from tests import helpers as zoo
 
-FRAMES = 2 * modes.LANE_FRAMES  # the shortest recording that can be warm-started: two lanes
+FRAMES = 2 * recording.LANE_FRAMES  # the shortest recording that can be warm-started: two lanes
 
 
 def agreement(found, reference):
@@ -56,13 +57,13 @@ def cold(meeting):
 @pytest.fixture(scope="module")
 def warm(meeting, monkeypatch_module):
     calls = []
-    lanes = modes._warm_lanes_jit
+    lanes = recording._warm_lanes_jit
 
     def spy(*args, **kwargs):
         calls.append(args[0].batch_shape)
         return lanes(*args, **kwargs)
 
-    monkeypatch_module.setattr(modes, "_warm_lanes_jit", spy)
+    monkeypatch_module.setattr(recording, "_warm_lanes_jit", spy)
     return find_concurrences_over_frames(meeting, warm_start=True), calls
 
 
@@ -74,11 +75,11 @@ def monkeypatch_module():
 
 def test_warm_start_agrees_with_the_full_seed_set(warm, cold):
     found, calls = warm
-    assert calls and calls[0][1] == modes.LANE_FRAMES - 1  # the lanes ran, warm-started
+    assert calls and calls[0][1] == recording.LANE_FRAMES - 1  # the lanes ran, warm-started
     same, close = agreement(found, cold)
     assert same >= 0.99, same
     assert close >= 0.99, close
-    lane_starts = np.arange(0, FRAMES, modes.LANE_FRAMES)
+    lane_starts = np.arange(0, FRAMES, recording.LANE_FRAMES)
     np.testing.assert_array_equal(found.valid[lane_starts], cold.valid[lane_starts])
 
 
@@ -86,10 +87,10 @@ def test_warm_start_is_the_default_for_long_recordings(meeting, monkeypatch):
     """By default a recording shorter than WARM_START_MIN_FRAMES gets the full search (compiling the warm
     program would cost more than it saves), a longer one the warm start."""
     called = []
-    monkeypatch.setattr(modes, "_warm_started", lambda *args: called.append(True) or "warm")
-    monkeypatch.setattr(modes, "WARM_START_MIN_FRAMES", FRAMES)
+    monkeypatch.setattr(recording, "_warm_started", lambda *args: called.append(True) or "warm")
+    monkeypatch.setattr(recording, "WARM_START_MIN_FRAMES", FRAMES)
     assert find_concurrences_over_frames(meeting) == "warm"
-    monkeypatch.setattr(modes, "WARM_START_MIN_FRAMES", FRAMES + 1)
+    monkeypatch.setattr(recording, "WARM_START_MIN_FRAMES", FRAMES + 1)
     assert find_concurrences_over_frames(meeting) != "warm" and len(called) == 1
 
 
@@ -110,10 +111,10 @@ def test_unexplained_rays_are_two_unclaimed_rays_crossing():
     directions[2] = [0.0, 1.0, 0.0]  # the third looks away
     rays = GazeRays(eyes, directions, np.full(3, 0.02))
     box = jnp.array([[-np.inf] * 3, [np.inf] * 3])
-    free = modes._empty(rays, modes.ConcurrenceOptions())._replace(membership=jnp.full(3, -1, jnp.int32))
+    free = recording.empty_concurrences(rays, ConcurrenceOptions())._replace(membership=jnp.full(3, -1, jnp.int32))
 
     def unexplained(r, found):
-        return bool(modes._unexplained(r, found, box, 6.0))
+        return bool(frame.unexplained(r, found, box, 6.0))
 
     assert unexplained(rays, free)
     assert not unexplained(rays, free._replace(membership=jnp.array([0, 0, -1], jnp.int32)))
@@ -122,7 +123,7 @@ def test_unexplained_rays_are_two_unclaimed_rays_crossing():
     assert not unexplained(GazeRays(eyes, backwards, np.full(3, 0.02)), free)  # they meet behind the eyes
     assert not unexplained(rays, free._replace(mutual_gaze=jnp.array([1, 0, -1], jnp.int32)))
     below = jnp.array([[-np.inf, -np.inf, 1.5], [np.inf, np.inf, np.inf]])
-    assert not bool(modes._unexplained(rays, free, below, 6.0))  # the crossing is outside the box
+    assert not bool(frame.unexplained(rays, free, below, 6.0))  # the crossing is outside the box
 
 
 @pytest.fixture(scope="module")

@@ -71,7 +71,7 @@ def test_posterior_programs_cannot_split_lapack_calls():
         import jax, numpy as np
         from jaxgaze.bias.estimators import sample_bias_posterior
         offsets = np.random.default_rng(0).normal(0, 0.1, (2, 200, 2))
-        sample_bias_posterior(jax.random.key(0), offsets, num_warmup=5, num_samples=500)
+        sample_bias_posterior(offsets, key=jax.random.key(0), num_warmup=5, num_samples=500)
     """))
     assert any(c.routine == "trsm" and c.cost * 500 > 200_000 for c in calls)  # vmapped over draws, it would split
     assert _splitting(calls) == []

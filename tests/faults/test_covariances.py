@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from jaxgaze import GazeRays, find_concurrences, find_concurrences_over_frames
-from jaxgaze.concurrence.modes import Concurrences, Tracks
+from jaxgaze.concurrence import Concurrences, Tracks
 from jaxgaze.io.concurrences import write_concurrences_csv
 
 AXIS = np.array([1.0, 0.8, 0.3]) / np.linalg.norm([1.0, 0.8, 0.3])

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from jaxgaze import ConcurrenceStream
-from jaxgaze.concurrence import modes
+from jaxgaze.concurrence import recording
 from jaxgaze.io import text
 from tests.cli.helpers import assert_failed, run_main
 
@@ -84,7 +84,7 @@ def _crowd_csv(path, people):
 
 
 def test_too_many_people_in_a_frame_is_one_line(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(modes, "MAX_RAYS_PER_FRAME", 40, raising=False)  # the bound, made small for CI
+    monkeypatch.setattr(recording, "MAX_RAYS_PER_FRAME", 40, raising=False)  # the bound, made small for CI
     _crowd_csv(tmp_path / "rays.csv", 41)
     out = tmp_path / "out.csv"
     assert_failed(*run_main(capsys, ["concurrences", tmp_path / "rays.csv", "--out", out]), "41 people in one frame",
@@ -93,6 +93,6 @@ def test_too_many_people_in_a_frame_is_one_line(tmp_path, capsys, monkeypatch):
 
 
 def test_the_people_bound_holds_for_every_entry_point():
-    people = getattr(modes, "MAX_RAYS_PER_FRAME", 2048) + 1
+    people = getattr(recording, "MAX_RAYS_PER_FRAME", 2048) + 1
     with pytest.raises(ValueError, match=f"{people} people in one frame"):
         ConcurrenceStream(num_people=people)

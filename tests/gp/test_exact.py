@@ -15,7 +15,7 @@ from sklearn.gaussian_process import kernels as skk
 
 import jaxgaze.gp as gp
 from jaxgaze.gp.kernels import Kernel
-from jaxgaze.results import RESULTS
+from jaxgaze.results import NAMES, OPTIMISTIX, RESULTS, FitError, code, from_optimistix, name, succeeded
 
 JITTER = 1e-8  # ours (absolute) = sklearn's alpha
 
@@ -236,6 +236,34 @@ def test_not_positive_definite_is_reported_with_the_jitter(x64):
         jax.block_until_ready(jax.jit(lambda X, y: gp.log_marginal_likelihood(_Indefinite(), X, y))(X, y))
 
 
+def test_a_failed_fit_is_its_result_and_throw_carries_the_fitted_gp(x64):
+    """One spelling of success (``succeeded``), and ``throw=True`` loses nothing: the FitError holds the fit."""
+    X, y, _ = _data(n=10)
+    fitted = gp.fit(_Indefinite(), X, y, key=jax.random.key(0))
+    assert succeeded(fitted) is False and fitted.result == RESULTS.not_positive_definite
+    with pytest.raises(FitError, match="not positive definite") as error:
+        gp.fit(_Indefinite(), X, y, key=jax.random.key(0), throw=True)
+    assert isinstance(error.value.fit, gp.FittedGP) and error.value.result == RESULTS.not_positive_definite
+    assert error.value.fit.result == fitted.result and error.value.fit.jitter == fitted.jitter
+    np.testing.assert_array_equal(error.value.fit.cholesky, fitted.cholesky)
+
+
+def test_optimistix_results_map_to_ours_through_one_table():
+    """Every ``optimistix.RESULTS`` member maps through ``OPTIMISTIX`` (others: ``optimiser_failed``),
+    concrete, batched and under ``jit``."""
+    import optimistix as optx
+
+    theirs = ["successful", "max_steps_reached", "singular", "breakdown", "stagnation", "conlim", "nonfinite_input",
+              "nonlinear_max_steps_reached", "nonlinear_divergence", "nonfinite"]  # optimistix 0.1's members
+    for member in theirs:
+        ours = from_optimistix(getattr(optx.RESULTS, member))
+        assert name(ours) == OPTIMISTIX.get(member, "optimiser_failed"), member
+    batch = jax.jit(jax.vmap(lambda ok: from_optimistix(optx.RESULTS.where(
+        ok, optx.RESULTS.nonlinear_max_steps_reached, optx.RESULTS.nonlinear_divergence))))(jnp.array([True, False]))
+    assert [NAMES[c] for c in np.asarray(code(batch))] == ["max_steps_reached", "optimiser_failed"]
+    np.testing.assert_array_equal(succeeded(from_optimistix(optx.RESULTS.successful)), True)
+
+
 def test_fit_float32_data_with_both_methods():
     """Float32 data fit in float32 throughout; Fisher scoring and whitened BFGS agree."""
     X, y, Xs = _data(n=80, d=2, seed=3)
@@ -255,7 +283,7 @@ def test_fit_float32_data_with_both_methods():
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
 def test_upper_inverse_from_cholesky_is_the_triangle_of_the_inverse(x64, dtype, n):
     # n = 57 takes XLA's triangular solves, n = 520 LAPACK potri in a host callback (CPU).
-    from jaxgaze.gp.exact import _HOST_POTRI_MIN_SIZE, _trace_weights, _upper_inverse_from_cholesky
+    from jaxgaze.gp._linalg import _HOST_POTRI_MIN_SIZE, _trace_weights, _upper_inverse_from_cholesky
 
     rng = np.random.default_rng(3)
     A = rng.normal(size=(n, n))
@@ -300,7 +328,7 @@ def test_lml_hessian_matches_finite_differences_of_the_gradient(x64):
 def test_optimise_reports_the_objective_at_its_optimum(x64):
     # A float64 stage returns the solver's own last evaluation as its value (no re-evaluation):
     # it must be the objective at the returned parameters.
-    from jaxgaze.gp import exact
+    from jaxgaze.gp import _fit
 
     X, y, _ = _data(n=60)
     kernel = gp.RationalQuadratic() + gp.White(0.1)
@@ -308,16 +336,16 @@ def test_optimise_reports_the_objective_at_its_optimum(x64):
     theta, _ = ravel_pytree(template)
     X, y = jnp.asarray(X), jnp.asarray(y)
     for method in ("bfgs", "fisher"):
-        out = exact._optimise(theta[None], template, static, X, y, None, jax.random.key(0), 50, 1e-3, method)
-        fn = exact._objective(template, static, X, y, None)
-        assert bool(out.successful[0]) and int(out.steps[0]) > 1
+        out = _fit._optimise(theta[None], template, static, X, y, None, jax.random.key(0), 50, 1e-3, method)
+        fn = _fit._objective(template, static, X, y, None)
+        assert bool(succeeded(out.result)[0]) and int(out.steps[0]) > 1
         np.testing.assert_allclose(out.value[0], fn(out.theta[0], None), rtol=1e-10)
 
 
 def test_fit_progress_bar_counts_evaluations_and_changes_nothing(monkeypatch, capsys):
     from tqdm import tqdm
 
-    from jaxgaze.gp import exact
+    from jaxgaze import _progress
 
     class RecordingBar(tqdm):
         made = []
@@ -340,7 +368,7 @@ def test_fit_progress_bar_counts_evaluations_and_changes_nothing(monkeypatch, ca
     X, y, _ = _data(n=80, d=2, seed=3)
     X, y = X.astype(np.float32), y.astype(np.float32)
     kernel = gp.RBF() + gp.White(1.0)
-    monkeypatch.setattr(exact, "tqdm", RecordingBar)
+    monkeypatch.setattr(_progress, "tqdm", RecordingBar)
     quiet = gp.fit(kernel, X, y, key=jax.random.key(2), num_restarts=2)
     assert RecordingBar.made[0].disable and capsys.readouterr().err == ""  # no bar shown without progress
     shown = gp.fit(kernel, X, y, key=jax.random.key(2), num_restarts=2, progress=True)
@@ -351,13 +379,13 @@ def test_fit_progress_bar_counts_evaluations_and_changes_nothing(monkeypatch, ca
     # One evaluation per optimiser step, plus each start's own and its float32 re-evaluation.
     assert shown.stages[0][2] < bar.count <= shown.stages[0][2] + 2 * 2
     assert "GP fit, stage 1/1 (80 points, float32): " in capsys.readouterr().err
-    assert exact._progress_bar is None
+    assert _progress._current is None
 
 
 @settings(max_examples=300, deadline=None)
 @given(n=st.integers(2, 100_000), first=st.integers(8, 1024))
 def test_stage_sizes_grow_to_all_data_with_a_last_subset_between_n_over_2_5_and_n_over_1_5(n, first):
-    from jaxgaze.gp.exact import _stage_sizes
+    from jaxgaze.gp._fit import _stage_sizes
 
     sizes = _stage_sizes(n, first)
     assert sizes[0] == min(n, first) and sizes[-1] == n

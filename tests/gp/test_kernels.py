@@ -14,6 +14,7 @@ from sklearn.gaussian_process import kernels as skk
 
 import jaxgaze.gp as gp
 from jaxgaze.gp.kernels import Kernel
+from jaxgaze.gp.transforms import POSITIVE_FLOOR, positive, unconstrain_positive
 
 RNG = np.random.default_rng(0)
 XA = RNG.normal(size=(7, 3))
@@ -173,7 +174,7 @@ def test_kernels_work_under_jit_and_grad(x64):
     params, static = eqx.partition(k, k.trainable_filter())
     grads = jax.grad(lambda p: jnp.sum(eqx.combine(p, static)(X)))(params)
     # d/d raw_variance of Σ K for White is n·σ² (= Σ diag), and σ² = exp(raw) + floor.
-    np.testing.assert_allclose(grads.kernels[2].raw_variance, 7 * (0.1 - gp.POSITIVE_FLOOR), rtol=1e-9)
+    np.testing.assert_allclose(grads.kernels[2].raw_variance, 7 * (0.1 - POSITIVE_FLOOR), rtol=1e-9)
 
 
 # -- parameters ----------------------------------------------------------------------------
@@ -185,7 +186,7 @@ def test_parameters_round_trip_and_fixed_filter(x64):
     np.testing.assert_allclose(k.lengthscale, [0.3, 4.0], rtol=1e-12)
     np.testing.assert_allclose(k.alpha, 0.5, rtol=1e-12)
     for value in (1e-8, 1.0, 3e5):
-        np.testing.assert_allclose(gp.positive(gp.unconstrain_positive(value)), value, rtol=1e-10)
+        np.testing.assert_allclose(positive(unconstrain_positive(value)), value, rtol=1e-10)
     lin = gp.Linear(1.0, 0.3, fixed=("variance",))
     spec = (gp.RBF() + lin).trainable_filter()
     assert spec.kernels[1].raw_variance is False and spec.kernels[1].raw_bias_variance is True

@@ -13,10 +13,9 @@ import pytest
 
 from jaxgaze.gp import kernels
 from jaxgaze.papers.yucel2013 import evaluate_regression, format_cogsci_table, format_table_i
-from jaxgaze.gp.exact import fit, predict
-from jaxgaze.gp.posterior import sample_hyperparameter_posterior
+from jaxgaze.gp import fit, predict, sample_hyperparameter_posterior
 from jaxgaze.nuts import mixing_result
-from jaxgaze.results import RESULTS, FitError
+from jaxgaze.results import RESULTS, FitError, succeeded
 from jaxgaze.headpose.regression import (
     RescaledRegression,
     fit_gaze_regression,
@@ -77,12 +76,37 @@ def test_regression_predicts_training_truth_closely(sessions):
     s = sessions[0]
     X = head_pose_features(s.head_pose)[::3]
     model = fit_gaze_regression(X, s.gaze_direction_image[::3], s.target_depth_image[::3], key=jax.random.key(0))
-    assert model.converged
+    assert succeeded(model)
     pred = model.predict(X)
     # In-sample errors are far below the spread of the targets.
     assert np.sqrt(np.mean((np.asarray(pred.direction) - np.asarray(s.gaze_direction_image[::3])) ** 2)) < 0.5 * np.std(
         np.asarray(s.gaze_direction_image))
     assert np.all(np.asarray(pred.direction_variance) > 0) and np.all(np.asarray(pred.depth_variance) > 0)
+
+
+def test_a_failed_gp_is_the_regressions_result_and_throw_carries_the_fit(sessions, monkeypatch):
+    """The f2 GP stops at max_steps: the regression reports it (one result, read by ``succeeded``),
+    and ``throw=True`` raises a FitError holding the regression, f1 fitted as without ``throw``."""
+    import jaxgaze.headpose.regression as regression
+
+    s = sessions[0]
+    X, f1, f2 = head_pose_features(s.head_pose)[:60:3], s.gaze_direction_image[:60:3], s.target_depth_image[:60:3]
+    calls = []
+
+    def depth_fails(*args, **kwargs):
+        gp = fit(*args, **kwargs)
+        calls.append(gp)
+        return gp._replace(result=RESULTS.max_steps_reached) if len(calls) % 2 == 0 else gp
+
+    monkeypatch.setattr(regression, "fit", depth_fails)
+    model = fit_gaze_regression(X, f1, f2, key=jax.random.key(0))  # throw=False by default
+    assert model.result == RESULTS.max_steps_reached and succeeded(model) is False
+    assert model.direction_gp.result == RESULTS.successful
+    with pytest.raises(FitError, match="f2 .depth. GP") as error:
+        fit_gaze_regression(X, f1, f2, key=jax.random.key(0), throw=True)
+    assert isinstance(error.value.fit, regression.GazeRegression)
+    assert error.value.result == RESULTS.max_steps_reached
+    np.testing.assert_array_equal(error.value.fit.predict(X).direction, model.predict(X).direction)
 
 
 @pytest.mark.parametrize(
@@ -160,16 +184,16 @@ def test_posterior_covers_true_hyperparameters_and_reports_inference_data(poster
     for name, true in (("0.RBF.lengthscale", 0.8), ("1.White.variance", 0.04)):
         lo, hi = np.quantile(post.samples[name], [0.025, 0.975])
         assert lo < true < hi, (name, lo, hi)
-    summary = az.summary(post.inference_data)
+    summary = az.summary(post.sampler.idata)
     assert list(summary.index) == list(post.samples)
-    assert post.divergences <= 5
+    assert post.sampler.diagnostics.divergences <= 5
     assert summary["ess_bulk"].min() > 30
     # the shared mixing checks: the result follows them, and a 400-draw run of 3 hyperparameters passes
-    d = post.diagnostics
-    assert d["divergences"] == post.divergences and d["draws"] == 400 and d["chains"] == 1
-    assert post.result == mixing_result(d) and post.succeeded
-    assert np.isfinite(d["max_rhat"]) and d["min_ess_tail"] >= 100
-    table = post.summary  # mean, sd, 90% HDI, ESS and the split r-hat that a single chain has
+    d = post.sampler.diagnostics
+    assert d.divergences == int(np.sum(post.sampler.idata.sample_stats["diverging"].values)) and d.draws == 400 and d.chains == 1
+    assert post.result == mixing_result(d) and succeeded(post)
+    assert np.isfinite(d.max_rhat) and d.min_ess_tail >= 100
+    table = post.sampler.summary  # mean, sd, 90% HDI, ESS and the split r-hat that a single chain has
     assert {"mean", "sd", "hdi_5%", "hdi_95%", "ess_bulk", "ess_tail", "r_hat"} <= set(table.columns)
     assert list(table.index) == list(post.samples) and np.all(table["r_hat"] < 1.05)
     assert np.all(table["hdi_5%"] < table["mean"]) and np.all(table["mean"] < table["hdi_95%"])
@@ -192,11 +216,13 @@ def test_a_hyperparameter_sampler_that_never_moved_is_a_failure(posterior_case, 
     with jax.enable_x64(True):
         post = sample_hyperparameter_posterior(prior, X, y, key=jax.random.key(4), start=ml, num_warmup=300,
                                                num_samples=400)
-        assert post.result == RESULTS.not_mixed and not post.succeeded
-        assert post.diagnostics["min_ess_bulk"] == 0 and np.isnan(post.diagnostics["max_rhat"])
-        with pytest.raises(FitError, match="did not mix"):
+        assert post.result == RESULTS.not_mixed and not succeeded(post)
+        assert post.sampler.diagnostics.min_ess_bulk == 0 and np.isnan(post.sampler.diagnostics.max_rhat)
+        with pytest.raises(FitError, match="did not mix") as error:
             sample_hyperparameter_posterior(prior, X, y, key=jax.random.key(4), start=ml, num_warmup=300,
                                             num_samples=400, throw=True)
+        # the FitError carries the posterior (new in issue 36): the draws are not thrown away
+        assert error.value.fit.result == RESULTS.not_mixed and error.value.fit.sampler.diagnostics.min_ess_bulk == 0
 
 
 def test_posterior_prediction_is_the_mixture_of_per_draw_predictions(posterior_case, x64):

@@ -30,7 +30,7 @@ from jaxgaze.io.calibration import read_calibration_json
 from jaxgaze.io.gaze import read_gaze, read_gaze_csv, read_openface_gaze, read_targets_csv
 from jaxgaze.io.joint import read_joint_gaze, read_speech
 from jaxgaze.io.models import load_gaze_regression, read_model_metadata, save_gaze_regression
-from jaxgaze.io.openface import read_openface
+from jaxgaze.io.tools.openface import read_openface
 from jaxgaze.io.poses import read_camera_poses_csv, read_colmap_images, read_pose_csv, read_poses
 from jaxgaze.io.rays import read_rays_csv
 from jaxgaze.io.speech import read_rttm, read_segments_csv

@@ -8,7 +8,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaxgaze.io.gaze360 import (
+from jaxgaze.io.tools.gaze360 import (
     GAZE360_COLUMNS,
     MAX_BANDWIDTH_GAZE360,
     R_90,
@@ -19,7 +19,7 @@ from jaxgaze.io.gaze360 import (
     read_gaze360,
     write_gaze360,
 )
-from jaxgaze.io.l2cs import DEFAULT_BANDWIDTH_L2CS, l2cs_to_rays, read_l2cs, write_l2cs
+from jaxgaze.io.tools.l2cs import DEFAULT_BANDWIDTH_L2CS, l2cs_to_rays, read_l2cs, write_l2cs
 from jaxgaze.io.rays import stack_rays
 from jaxgaze.io.text import InputFileError
 from jaxgaze.poses import camera_poses

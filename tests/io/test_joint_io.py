@@ -31,7 +31,7 @@ def _posterior(T=6, seed=0):
     mutual = looks * np.swapaxes(looks, 1, 2)
     mutual[3] = 0.0  # no chance of mutual gaze at row 3
     mutual[4] = 1e-9  # … nor, to 6 decimals, at row 4
-    return SimpleNamespace(people=PEOPLE, candidates=CANDIDATES, membership=membership, mutual=mutual, idata=None)
+    return SimpleNamespace(people=PEOPLE, candidates=CANDIDATES, membership=membership, mutual=mutual, sampler=None)
 
 
 def _read(path):
@@ -138,7 +138,7 @@ def test_netcdf_round_trip(tmp_path):
     idata = _idata()
     path = tmp_path / "joint.nc"
     path.write_text("an older file")
-    assert write_joint_netcdf(path, SimpleNamespace(idata=idata)) == str(path)
+    assert write_joint_netcdf(path, SimpleNamespace(sampler=SimpleNamespace(idata=idata))) == str(path)
     back = az.from_netcdf(path)
     np.testing.assert_allclose(back.posterior["bias"].values.reshape(1, 8, 3, 2), idata.posterior["bias"].values)
     assert list(back.posterior["person"].values) == list(PEOPLE)
@@ -154,7 +154,7 @@ def test_netcdf_atomic(tmp_path):
 
     path = tmp_path / "joint.nc"
     with pytest.raises(_Boom):
-        write_joint_netcdf(path, SimpleNamespace(idata=Broken()))
+        write_joint_netcdf(path, SimpleNamespace(sampler=SimpleNamespace(idata=Broken())))
     assert os.listdir(tmp_path) == []
 
 

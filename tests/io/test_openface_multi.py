@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.gaze_tools import bandwidth_from_mean_angular_error
-from jaxgaze.io.openface import (
+from jaxgaze.io.tools.common import bandwidth_from_mean_angular_error
+from jaxgaze.io.tools.openface import (
     DEFAULT_BANDWIDTH_OPENFACE,
     OpenFaceFileError,
     link_openface_faces,

@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from jaxgaze.bias.speech import SpeechSegments, speaking_flags
 from jaxgaze.io.gaze import read_gaze
-from jaxgaze.io.openface import R_OPENFACE_MODEL_FROM_HEAD, OpenFaceFileError, read_openface
+from jaxgaze.io.tools.openface import R_OPENFACE_MODEL_FROM_HEAD, OpenFaceFileError, read_openface
 from jaxgaze.io.speech import SpeechFileError, read_rttm, read_segments_csv
 from jaxgaze.geometry import axis_angle_to_rotation_matrix, yaw_pitch_to_direction
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
@@ -650,7 +650,7 @@ def test_openface_pose_and_gaze_is_the_inverse_of_the_reader(tmp_path):
     """Columns written by openface_pose_and_gaze read back (read_openface) as the same pose and gaze."""
     from scipy.spatial.transform import Rotation
 
-    from jaxgaze.io.openface import OPENFACE_COLUMNS, openface_pose_and_gaze
+    from jaxgaze.io.tools.openface import OPENFACE_COLUMNS, openface_pose_and_gaze
 
     rng = np.random.default_rng(4)
     T = 40

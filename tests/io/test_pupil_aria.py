@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxgaze.io import aria, pupil
-from jaxgaze.io.gaze_tools import MissingExtraError
+from jaxgaze.io.tools import aria, pupil
+from jaxgaze.io.tools.common import MissingExtraError
 from jaxgaze.io.rays import stack_rays
 from jaxgaze.io.text import InputFileError
 from jaxgaze.poses import camera_poses

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from jaxgaze.calibration.cone_fit import ConeCalibration
+from jaxgaze.results import succeeded
 from jaxgaze.io.attend import ATTEND_COLUMNS, write_attend_csv
 from jaxgaze.io.calibration import (CALIBRATION_KEYS, WearerCalibration, calibrated_rays, read_calibration_json,
                                     write_calibration_json)
@@ -275,7 +276,7 @@ def test_calibration_json_round_trip(tmp_path):
     assert isinstance(read, WearerCalibration) and read.wearer == "ann" and read.path == str(path)
     np.testing.assert_allclose(read.cone.eye_center, cone.eye_center)
     np.testing.assert_allclose(read.cone.direction, [0.6, 0.0, 0.8])
-    assert float(read.cone.bandwidth) == 0.03 and float(read.cone.alpha) == 0.02 and bool(read.cone.succeeded)
+    assert float(read.cone.bandwidth) == 0.03 and float(read.cone.alpha) == 0.02 and bool(succeeded(read.cone))
 
 
 def test_calibration_json_errors_name_the_line(tmp_path):

@@ -10,14 +10,14 @@ import cv2
 import numpy as np
 import pytest
 
-from jaxgaze.io.mediapipe import (
+from jaxgaze.io.tools.mediapipe import (
     DEFAULT_BANDWIDTH_MEDIAPIPE,
     mediapipe_to_rays,
     read_mediapipe,
     write_mediapipe,
 )
 from jaxgaze.io.text import InputFileError
-from jaxgaze.io.xgaze import (
+from jaxgaze.io.tools.xgaze import (
     DEFAULT_BANDWIDTH_XGAZE,
     ETH_XGAZE_FACE_MODEL,
     xgaze_head_pose,

@@ -14,8 +14,8 @@ from numpyro.infer.util import potential_energy
 
 from jaxgaze.cone import cone_direction_log_density
 from jaxgaze.geometry import head_pose_to_rotation
-from jaxgaze.joint import (BLOCK_FRAMES, JointPrior, candidate_log_probabilities, joint_data, joint_model,
-                           marginal_log_likelihood, target_marginals)
+from jaxgaze.joint import BLOCK_FRAMES, JointPrior, joint_data, target_marginals
+from jaxgaze.joint.model import candidate_log_probabilities, joint_model, marginal_log_likelihood
 from jaxgaze.joint.infer import _arrays
 from jaxgaze.joint.model import _candidate_terms
 

@@ -11,6 +11,7 @@ import pytest
 from jaxgaze.headpose import target as tg
 from jaxgaze.headpose.regression import fit_gaze_regression
 from jaxgaze.headpose.features import head_pose_features
+from jaxgaze.results import RESULTS, code
 from jaxgaze.vision import tracker
 from jaxgaze.vision.attend import (
     OVERLAY_COLOURS,
@@ -258,7 +259,8 @@ def _fake_track(pose, translation):
     Rf = np.broadcast_to(np.array([[0.0, 1, 0], [0, 0, -1], [-1, 0, 0]]), (T, 3, 3)).copy()
     lost = ~np.isfinite(pose[:, 0])
     Rf[lost] = np.nan
-    return tracker.HeadTrack(pose, translation, np.zeros(T), np.zeros(T, bool), ~lost, Rf)
+    result = jax.tree.map(lambda ok: np.where(lost, code(RESULTS.lost), ok), RESULTS.successful)
+    return tracker.HeadTrack(pose, translation, np.zeros(T), np.zeros(T, bool), result, Rf)
 
 
 def test_attend_frames_flags_lost_and_flat_windows(table_top, monkeypatch):

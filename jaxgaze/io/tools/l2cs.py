@@ -19,7 +19,7 @@ order, horizontal first; pass ``order=("yaw", "pitch")`` if your code swapped th
 ``(−cos v sin h, −sin v, −cos v cos h)`` in axes right, down, away from the camera. The shipped
 ``L2CSNet_gaze360.pkl`` is trained on GazeHub's Gaze360 labels, i.e. in Gaze360's eye coordinate
 system (z from the camera to the face), so the direction is Gaze360's with ``yaw = h``,
-``pitch = v`` (:func:`jaxgaze.io.gaze360.gaze360_directions`): ``h = v = 0`` looks into the camera
+``pitch = v`` (:func:`jaxgaze.io.tools.gaze360.gaze360_directions`): ``h = v = 0`` looks into the camera
 wherever the face is, ``h > 0`` to the camera's left (the person's right), ``v > 0`` up.
 
 **Bandwidth.** L2CS-Net reports no uncertainty: every ray gets :data:`DEFAULT_BANDWIDTH_L2CS`, from
@@ -44,7 +44,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.gaze360 import (
+from jaxgaze.io.tools.gaze360 import (
     check_rows,
     check_unique,
     default_rows,
@@ -54,7 +54,7 @@ from jaxgaze.io.gaze360 import (
     recording_rows,
     validate_by_file,
 )
-from jaxgaze.io.gaze_tools import bandwidth_from_mean_angular_error, rays_from_camera, tool_bandwidth
+from jaxgaze.io.tools.common import bandwidth_from_mean_angular_error, rays_from_camera, tool_bandwidth
 from jaxgaze.io.rays import RayRecording
 from jaxgaze.io.text import format_float, write_csv_rows
 from jaxgaze.poses import CameraPoses

@@ -59,14 +59,14 @@ import cv2
 import numpy as np
 
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.gaze_tools import (
+from jaxgaze.io.tools.common import (
     bandwidth_from_mean_angular_error,
     camera_rays_to_world,
     require_extra,
     world_rays_to_camera,
 )
 from jaxgaze.io.rays import RayRecording, stack_rays
-from jaxgaze.io.text import InputFileError, format_float, read_csv_table, write_csv_rows
+from jaxgaze.io.text import InputFileError, format_float, read_csv_table, read_text, write_csv_rows
 from jaxgaze.poses import CameraPoses
 
 __all__ = [
@@ -83,6 +83,7 @@ __all__ = [
     "read_neon",
     "write_neon",
     "read_neon_recording",
+    "read_pupil_labs",
 ]
 
 #: The header of Pupil Player's ``gaze_positions.csv`` (``Gaze_Positions_Exporter.csv_export_labels``).
@@ -103,7 +104,7 @@ NEON_COLUMNS = (
 MIN_CONFIDENCE = 0.6
 #: Bandwidth ``h`` of a Pupil Core 3D-gaze ray: the 3D pipeline's ~1.0°–2.0° visual error under good
 #: conditions (Pupil docs, "Best Practices: Choose the Right Gaze Mapping Pipeline"), taken as a mean
-#: angular error of 1.5° (:func:`~jaxgaze.io.gaze_tools.bandwidth_from_mean_angular_error`): 0.0209 rad.
+#: angular error of 1.5° (:func:`~jaxgaze.io.tools.common.bandwidth_from_mean_angular_error`): 0.0209 rad.
 DEFAULT_BANDWIDTH_PUPIL = bandwidth_from_mean_angular_error(math.radians(1.5))
 #: Bandwidth ``h`` of a Neon ray: its calibration-free mean angular error of about 1.8° (Pupil Labs'
 #: Neon accuracy white paper, linked from the docs' "Data Streams: Gaze"): 0.0251 rad.
@@ -517,3 +518,24 @@ def read_neon_recording(paths, *, camera: Cameras = None, persons: Optional[Sequ
         rays_opencv = np.concatenate([undistorted, np.ones((len(undistorted), 1))], axis=1)
         samples.append((os.fspath(path), times, _ours_from_opencv(rays_opencv)))
     return _neon_rays(samples, names, camera, start_ns, fps, bandwidth)
+
+
+def _is_neon(path) -> bool:
+    """Whether a Pupil Labs CSV is Neon's export (its header names ``azimuth [deg]``), not Pupil Core's."""
+    text = read_text(path)
+    header = next((line for line in text.splitlines() if line.strip()), "")
+    return "azimuth [deg]" in header.lower()
+
+
+def read_pupil_labs(paths, *, camera: Cameras = None, persons: Optional[Sequence[str]] = None,
+                    fps: Optional[float] = None) -> RayRecording:
+    """Pupil Core or Neon CSV exports, told apart by their header (Neon's names ``azimuth [deg]``):
+    :func:`read_neon` (with ``fps``, default :data:`NEON_FPS`) or :func:`read_pupil` (frames of its own).
+    Both kinds at once are an :class:`InputFileError`."""
+    paths = as_paths(paths)
+    neon = [_is_neon(path) for path in paths]
+    if any(neon) and not all(neon):
+        raise InputFileError("Pupil Core and Neon exports mixed: convert them separately", paths[neon.index(False)])
+    if neon[0]:
+        return read_neon(paths, camera=camera, persons=persons, **({} if fps is None else {"fps": fps}))
+    return read_pupil(paths, camera=camera, persons=persons)

@@ -50,7 +50,7 @@ from typing import Optional
 
 import numpy as np
 
-from jaxgaze.io.gaze_tools import rays_from_camera, world_rays_to_camera, tool_bandwidth
+from jaxgaze.io.tools.common import rays_from_camera, world_rays_to_camera, tool_bandwidth
 from jaxgaze.io.rays import RayRecording
 from jaxgaze.io.text import InputFileError, atomic_path, first_few, read_lines
 from jaxgaze.poses import CameraPoses

@@ -46,7 +46,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.gaze_tools import rays_from_camera, world_rays_to_camera
+from jaxgaze.io.tools.common import rays_from_camera, world_rays_to_camera
 from jaxgaze.io.rays import RayRecording
 from jaxgaze.io.text import InputFileError, format_float, read_csv_table, write_csv_rows
 from jaxgaze.poses import CameraPoses

@@ -36,14 +36,11 @@ import re
 import warnings
 from typing import NamedTuple, Optional
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from jaxgaze.geometry import direction_to_yaw_pitch, unit
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.gaze_tools import bandwidth_from_mean_angular_error, rays_from_camera, world_rays_to_camera
+from jaxgaze.io.tools.common import bandwidth_from_mean_angular_error, rays_from_camera, world_rays_to_camera
 from jaxgaze.io.rays import RayRecording
 from jaxgaze.io.text import (InputFileError, first_few, format_float, parse_integer, parse_number, read_csv_table,
                              write_csv_rows)
@@ -169,9 +166,12 @@ class OpenFaceTrack(NamedTuple):
         paper's ``g = (φ, θ)``): ``direction_to_yaw_pitch(R_camera_from_headᵀ @ gaze)``.
         Yaw is positive to the person's left, tilt positive up."""
         d = np.einsum("tji,tj->ti", self.R_camera_from_head, self.gaze_direction_camera)
-        with jax.enable_x64(True):
-            yaw, tilt = direction_to_yaw_pitch(jnp.asarray(d))
-            return np.stack([np.asarray(yaw), np.asarray(tilt)], axis=-1)
+        # direction_to_yaw_pitch on the host in float64 (yaw 0 at a pole)
+        x, y, z = d[:, 0], d[:, 1], d[:, 2]
+        r2 = x * x + y * y
+        off_pole = r2 > 0
+        yaw = np.arctan2(np.where(off_pole, y, 0.0), np.where(off_pole, x, 1.0))
+        return np.stack([yaw, np.arctan2(z, np.sqrt(r2))], axis=-1)
 
 
 def _openface_euler_to_matrix(rx: np.ndarray, ry: np.ndarray, rz: np.ndarray) -> np.ndarray:
@@ -248,8 +248,7 @@ def _gaze_from_angles(ax: np.ndarray, ay: np.ndarray) -> np.ndarray:
     camera axes, ``unit(tan x, tan y, −1)`` (angles in (−π/2, π/2))."""
     # (tan x, tan y, −1) scaled by cos x cos y > 0: no division, same direction.
     g_cv = np.stack([np.sin(ax) * np.cos(ay), np.cos(ax) * np.sin(ay), -np.cos(ax) * np.cos(ay)], axis=-1)
-    with jax.enable_x64(True):
-        return np.asarray(unit(jnp.asarray(g_cv)), dtype=np.float64)
+    return g_cv / np.linalg.norm(g_cv, axis=-1, keepdims=True)
 
 
 def read_openface(path, *, min_confidence: float = 0.75, face_id: Optional[int] = None) -> OpenFaceTrack:

@@ -59,10 +59,11 @@ import warnings
 from typing import Optional, Sequence
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from jaxgaze.io.gaze_tools import bandwidth_from_mean_angular_error, camera_rays_to_world, require_extra
+from jaxgaze.io.tools.common import bandwidth_from_mean_angular_error, camera_rays_to_world, require_extra
 from jaxgaze.io.poses import check_quaternion
-from jaxgaze.io.pupil import as_paths, frames_on_grid, person_rays, wearer_names
+from jaxgaze.io.tools.pupil import as_paths, frames_on_grid, person_rays, wearer_names
 from jaxgaze.io.rays import RayRecording, stack_rays
 from jaxgaze.io.text import InputFileError, format_float, read_csv_table, write_csv_rows
 from jaxgaze.poses import CameraPoses
@@ -151,47 +152,18 @@ def direction_to_aria_gaze(directions) -> tuple[np.ndarray, np.ndarray]:
     return np.arctan(v[..., 1] / v[..., 0]), np.arctan(v[..., 2] / v[..., 0])
 
 
-def _quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Hamilton quaternions ``(M, 4)`` as ``(x, y, z, w)`` (unit) → ``(M, 3, 3)``."""
-    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=-2)
-
-
 def _matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
     """``(M, 3, 3)`` rotations → Hamilton quaternions ``(M, 4)`` as ``(x, y, z, w)`` with ``w ≥ 0``."""
-    out = np.empty((len(R), 4))
-    for i, m in enumerate(R):
-        trace = np.trace(m)
-        if trace > 0:
-            s = 2.0 * math.sqrt(trace + 1.0)
-            q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
-        else:
-            k = int(np.argmax(np.diag(m)))
-            i1, i2 = (k + 1) % 3, (k + 2) % 3
-            s = 2.0 * math.sqrt(1.0 + m[k, k] - m[i1, i1] - m[i2, i2])
-            q = [0.0, 0.0, 0.0, (m[i2, i1] - m[i1, i2]) / s]
-            q[k], q[i1], q[i2] = 0.25 * s, (m[i1, k] + m[k, i1]) / s, (m[i2, k] + m[k, i2]) / s
-        q = np.asarray(q)
-        out[i] = q if q[3] >= 0 else -q
-    return out
+    q = Rotation.from_matrix(np.asarray(R, np.float64).reshape(-1, 3, 3)).as_quat()
+    return np.where(q[:, 3:] < 0, -q, q)
 
 
 def _slerp(q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Spherical interpolation of unit quaternions ``(M, 4)`` at fractions ``s (M,)`` (shortest arc)."""
-    dot = np.sum(q0 * q1, axis=1)
-    q1 = np.where(dot[:, None] < 0, -q1, q1)
-    dot = np.abs(dot)
-    theta = np.arccos(np.clip(dot, -1.0, 1.0))
-    small = theta < 1e-8
-    sin = np.where(small, 1.0, np.sin(theta))
-    w0 = np.where(small, 1.0 - s, np.sin((1.0 - s) * theta) / sin)
-    w1 = np.where(small, s, np.sin(s * theta) / sin)
-    q = w0[:, None] * q0 + w1[:, None] * q1
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
+    """Spherical interpolation of unit quaternions ``(M, 4)`` ``(x, y, z, w)`` at fractions ``s (M,)``
+    (shortest arc), as rotation matrices ``(M, 3, 3)``: ``R₀ · exp(s · log(R₀ᵀ R₁))``."""
+    r0 = Rotation.from_quat(q0)
+    step = (r0.inv() * Rotation.from_quat(q1)).as_rotvec()
+    return (r0 * Rotation.from_rotvec(np.asarray(s, np.float64)[:, None] * step)).as_matrix()
 
 
 def _as_transform(T, name: str) -> np.ndarray:
@@ -337,8 +309,7 @@ class _Trajectory:
         span = np.maximum(t[upper] - t[lower], 1)
         s = np.where(exact, 0.0, (times_us - t[lower]) / span)
         translations = self.translations[lower] + s[:, None] * (self.translations[upper] - self.translations[lower])
-        quaternions = _slerp(self.quaternions[lower], self.quaternions[upper], s)
-        return _quaternion_to_matrix(quaternions), translations, covered
+        return _slerp(self.quaternions[lower], self.quaternions[upper], s), translations, covered
 
 
 def read_aria(paths, *, camera: Optional[CameraPoses] = None, persons: Optional[Sequence[str]] = None,
@@ -505,7 +476,7 @@ def _poses_at_times(pose_ns, R_world_cpf, centers, times_ns):
     lower = np.where(pose_ns[upper] == times_ns, upper, lower)
     span = np.maximum(pose_ns[upper] - pose_ns[lower], 1)
     s = np.clip(np.where(upper == lower, 0.0, (times_ns - pose_ns[lower]) / span), 0.0, 1.0)
-    return (_quaternion_to_matrix(_slerp(q[lower], q[upper], s)),
+    return (_slerp(q[lower], q[upper], s),
             centers[lower] + s[:, None] * (centers[upper] - centers[lower]))
 
 

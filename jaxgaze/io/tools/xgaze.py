@@ -24,7 +24,7 @@ own code:
 The face centre (ETH-XGaze ``normalizeData_face``) is the mean of the eye centre (four eye corners)
 and the nose centre (two nose wings), a few centimetres below the eyes; it is the ray's origin here
 (that offset is under 2° to a target 1 m away). Our rays are in our camera frame
-(``R_OURS_FROM_OPENCV``), or a world with ``camera=`` (:func:`~jaxgaze.io.gaze_tools.rays_from_camera`).
+(``R_OURS_FROM_OPENCV``), or a world with ``camera=`` (:func:`~jaxgaze.io.tools.common.rays_from_camera`).
 
 The networks return arrays, not files, so the file is a CSV dump (:data:`XGAZE_COLUMNS`) named after
 ptgaze's attributes: ``frame, person, pitch, yaw`` (``face.normalized_gaze_angles``), ``center_x,
@@ -45,7 +45,7 @@ import cv2
 import numpy as np
 
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.gaze_tools import bandwidth_from_mean_angular_error, rays_from_camera, world_rays_to_camera, tool_bandwidth
+from jaxgaze.io.tools.common import bandwidth_from_mean_angular_error, rays_from_camera, world_rays_to_camera, tool_bandwidth
 from jaxgaze.io.rays import RayRecording
 from jaxgaze.io.text import first_few, format_float, read_csv_table, write_csv_rows
 from jaxgaze.poses import CameraPoses
@@ -72,7 +72,7 @@ __all__ = [
 #: paper's 4.5°). A lower bound off the dataset: cross-dataset errors are larger.
 XGAZE_MEAN_GAZE_ERROR = math.radians(4.4929)
 #: Bandwidth ``h`` (radians, 0.063) of an ETH-XGaze/ptgaze ray: the tools report no uncertainty, so
-#: ``h = XGAZE_MEAN_GAZE_ERROR / √(π/2)`` (:func:`~jaxgaze.io.gaze_tools.bandwidth_from_mean_angular_error`).
+#: ``h = XGAZE_MEAN_GAZE_ERROR / √(π/2)`` (:func:`~jaxgaze.io.tools.common.bandwidth_from_mean_angular_error`).
 DEFAULT_BANDWIDTH_XGAZE = bandwidth_from_mean_angular_error(XGAZE_MEAN_GAZE_ERROR)
 
 NORMALIZING_ROT_COLUMNS = tuple(f"normalizing_rot_{i}{j}" for i in range(3) for j in range(3))
@@ -177,8 +177,8 @@ def xgaze_to_rays(pitch, yaw, face_centers_opencv, *, R_normalizing=None, R_head
                   path=None) -> RayRecording:
     """Rays from ``M`` network outputs ``pitch, yaw (M,)`` (radians, normalised frame) and face centres
     ``face_centers_opencv (M, 3)`` in the **OpenCV** camera axes (origin the camera centre, x right,
-    y down, z forward; ptgaze's ``face.center``), metres (unlike :func:`~jaxgaze.io.gaze360.gaze360_to_rays`
-    and :func:`~jaxgaze.io.l2cs.l2cs_to_rays`, which take our axes), with either the normalising rotations ``R_normalizing
+    y down, z forward; ptgaze's ``face.center``), metres (unlike :func:`~jaxgaze.io.tools.gaze360.gaze360_to_rays`
+    and :func:`~jaxgaze.io.tools.l2cs.l2cs_to_rays`, which take our axes), with either the normalising rotations ``R_normalizing
     (M, 3, 3)`` or the head rotations ``R_head (M, 3, 3)`` (camera from head model, OpenCV) from which
     :func:`normalizing_rotation` computes them. Direction ``Rᵀ g_norm`` (:func:`denormalize_gaze`),
     origin the face centre, both turned into our axes (``R_OURS_FROM_OPENCV``) and placed by ``camera``.

@@ -1,6 +1,6 @@
 """Other gaze tools' outputs → world-frame :class:`~jaxgaze.rays.GazeRays`: the pieces every adapter shares.
 
-Each adapter (``jaxgaze.io.gaze360``, ``l2cs``, ``xgaze``, ``mediapipe``, ``pupil``, ``aria``,
+Each adapter (``jaxgaze.io.tools.gaze360``, ``l2cs``, ``xgaze``, ``mediapipe``, ``pupil``, ``aria``,
 ``openface``) turns one tool's output into a :class:`~jaxgaze.io.rays.RayRecording`: one ray per
 (frame, person), origin at the centre of the eyes, world frame, metres, with a per-ray bandwidth
 ``h`` (radians) taken from the tool's own uncertainty where it reports one.
