@@ -66,11 +66,14 @@ def cone_direction_log_density(cosine: Float[Array, "..."], bandwidth: Float[Arr
     ``log p(v | u) = log κ − log 2π − log(1 − e^{−2κ}) + κ (uᵀv − 1)``, which for
     small angles equals the plane Gaussian (``κ(uᵀv − 1) ≈ −θ²/2h²``). Takes the
     cosine ``uᵀv`` of the direction and the axis; shapes broadcast, and the
-    normaliser is evaluated at the bandwidth's shape only.
+    normaliser is evaluated at the bandwidth's shape only. A cosine that rounding put above 1
+    counts as 1: a dot product of two unit float32 vectors can be ``1 + 10⁻⁷``, and with a
+    narrow cone ``κ · 10⁻⁷`` is a gain without bound (two equal gazes in a row made a fit's
+    widths collapse to 10⁻¹⁴ rad).
     """
     kappa = 1.0 / jnp.square(bandwidth)
     log_normaliser = jnp.log(kappa) - math.log(2.0 * math.pi) - jnp.log(-jnp.expm1(-2.0 * kappa))
-    return log_normaliser + kappa * (cosine - 1.0)
+    return log_normaliser + kappa * (jnp.minimum(cosine, 1.0) - 1.0)
 
 
 def sample_gaze_directions(key: PRNGKeyArray, rays: GazeRays) -> Float[Array, "N 3"]:

@@ -89,6 +89,11 @@ class RESULTS(eqx.Enumeration):
         "the head tracker lost the head: the pose left the tracked range, or tracking had failed before, and no "
         "face was found in the frame to start again; pose and translation are NaN until a later frame has a face"
     )
+    ambiguous = (
+        "the data cannot tell two explanations apart: another mode of the posterior (a person's bias that maps "
+        "their gaze onto other targets) has a Laplace evidence within log 20 of the sampled one; its draws are "
+        "one explanation, not the answer; see the posterior's alternatives"
+    )
 
 
 #: Member names in code order (``NAMES[i]`` is the member whose code is ``i``); these are
@@ -106,6 +111,7 @@ NAMES = (
     "not_mixed",
     "implausible",
     "lost",
+    "ambiguous",
 )
 
 

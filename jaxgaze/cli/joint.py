@@ -150,7 +150,7 @@ def run(args) -> int:
     import jax
 
     from jaxgaze.joint import fit_joint, joint_data
-    from jaxgaze.results import RESULTS, succeeded
+    from jaxgaze.results import succeeded
 
     warmup, draws, steps, seed, window_s, min_confidence, args.fps = (_number(o, v, t) for o, v, t in (
         ("--warmup", args.warmup, int_at_least(1)), ("--draws", args.draws, int_at_least(8)),
@@ -205,6 +205,6 @@ def run(args) -> int:
     if not args.quiet:
         print(_summary(posterior, data, [args.out] + ([args.per_frame] if args.per_frame else [])))
     if not succeeded(posterior):
-        print(f"jaxgaze joint: {RESULTS[posterior.result]}", file=sys.stderr)
+        print(f"jaxgaze joint: {posterior.message}", file=sys.stderr)
         return 1
     return 0

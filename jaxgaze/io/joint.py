@@ -10,6 +10,7 @@ The posterior is read by attribute only (``people``, ``candidates``, ``membershi
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -23,6 +24,7 @@ from jaxgaze.io.gaze import GazeFileError, GazeTrack, read_gaze
 from jaxgaze.io.speech import SpeechFileError, read_rttm, read_segments_csv
 from jaxgaze.io.text import atomic_path, csv_writer, format_float, read_text
 from jaxgaze.nuts import set_units, split_chains
+from jaxgaze.results import name
 
 __all__ = ["JOINT_FRAME_COLUMNS", "JOINT_FRAMES_FORMAT", "JOINT_INPUTS_FORMAT", "JointGaze", "read_joint_gaze",
            "read_speech", "speaking_by_person", "joint_frame_columns", "write_joint_frames", "write_joint_netcdf"]
@@ -155,7 +157,8 @@ def speaking_by_person(segments: SpeechSegments, people, times, speaker_map: Opt
 
 #: The fixed columns of the per-frame table; ``p_<candidate>`` columns go between ``probability`` and
 #: ``mutual_with`` (see :func:`joint_frame_columns`).
-JOINT_FRAME_COLUMNS = ("frame", "time", "person", "present", "target", "probability", "mutual_with", "p_mutual")
+JOINT_FRAME_COLUMNS = ("frame", "time", "person", "present", "target", "probability", "mutual_with", "p_mutual",
+                       "alternative_target", "alternative_probability", "alternative_weight")
 
 #: The inputs of ``jaxgaze joint`` in words (its help shows it).
 JOINT_INPUTS_FORMAT = """\
@@ -189,7 +192,12 @@ PER_FRAME.csv has one row per frame and person (frame-major):
                elsewhere; blanks in names become '_'); they sum to 1,
   mutual_with  the partner most probably in mutual gaze with the person
                (each looks at the other), empty when that is 0 to 6 decimals,
-  p_mutual     that probability.
+  p_mutual     that probability,
+  alternative_target, alternative_probability, alternative_weight
+               where the fit is ambiguous about the person (another bias
+               explains their gaze nearly as well): the most probable target
+               under that other explanation, its probability, and the
+               explanation's weight; empty otherwise.
 Rows of an absent person have present 0 and every other cell empty.
 """
 
@@ -249,6 +257,10 @@ def write_joint_frames(path, posterior, frames, times) -> int:
         raise ValueError(f"frames and times must give one value per frame of the posterior ({T}), got "
                          f"{len(frames)} and {len(times)}")
     columns = joint_frame_columns(candidates)
+    alternative = {}  # person → (target (T,), probability (T,), weight) of their heaviest alternative
+    for a in sorted(getattr(posterior, "alternatives", ()), key=lambda a: a.weight):
+        chance = np.asarray(a.membership, dtype=np.float64)
+        alternative[int(a.person)] = (np.argmax(chance, axis=-1), chance.max(axis=-1), float(a.weight))
     present = membership.sum(axis=-1) > 0
     best = np.argmax(membership, axis=-1)
     # Mutual gaze with oneself is not a thing: the diagonal never wins.
@@ -267,9 +279,12 @@ def write_joint_frames(path, posterior, frames, times) -> int:
                     continue
                 k = int(best[t, i])
                 chance = _probability(max(float(p_partner[t, i]), 0.0) if P > 1 else 0.0)
+                other = alternative.get(i)
                 writer.writerow([frame, time, people[i], 1, candidates[k], _probability(membership[t, i, k]),
                                  *(_probability(p) for p in membership[t, i]),
-                                 people[int(partner[t, i])] if chance not in ("", "0.0") else "", chance or "0.0"])
+                                 people[int(partner[t, i])] if chance not in ("", "0.0") else "", chance or "0.0",
+                                 *((candidates[int(other[0][t])], _probability(other[1][t]), _probability(other[2]))
+                                   if other else ("", "", ""))])
     return T * P
 
 
@@ -290,6 +305,21 @@ def write_joint_netcdf(path, posterior) -> str:
     idata = split_chains(posterior.sampler.idata)
     if hasattr(idata, "groups"):
         set_units(idata, NETCDF_UNITS)
+        _set_result(idata, posterior)
     with atomic_path(path) as tmp:
         idata.to_netcdf(tmp)
     return str(path)
+
+
+def _set_result(idata, posterior) -> None:
+    """The fit's ``result`` and its ``alternatives`` (JSON: person, bias and sd in degrees, weight, log evidence
+    gap) as attributes of the posterior group."""
+    result = getattr(posterior, "result", None)
+    if result is None or "posterior" not in idata.groups():
+        return
+    people = list(posterior.people)
+    idata.posterior.attrs["result"] = name(result)
+    idata.posterior.attrs["alternatives"] = json.dumps([
+        {"person": people[a.person], "bias_deg": np.degrees(a.bias).round(4).tolist(),
+         "bias_sd_deg": np.degrees(a.bias_sd).round(4).tolist(), "weight": round(float(a.weight), 6),
+         "log_evidence_gap": round(float(a.log_evidence_gap), 6)} for a in getattr(posterior, "alternatives", ())])

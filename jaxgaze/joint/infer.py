@@ -34,10 +34,12 @@ from jaxgaze.cone import sample_gaze_directions
 from jaxgaze.geometry import angle_between, unit
 from jaxgaze.joint.data import JointData
 from jaxgaze.joint.init import JointStart, directions_to_people, joint_start
+from jaxgaze.joint import rivals
 from jaxgaze.joint.model import (BLOCK_FRAMES, JointPrior, ModelArrays, concurrence_locations, eye_positions,
-                                 joint_model, target_marginals)
+                                 joint_model, model_params, target_log_prior, target_marginals)
 from jaxgaze.nuts import (MAX_DIVERGENT_SHARE, MAX_RHAT, MIN_ESS, SamplerReport, laplace_inverse_mass,
                           posterior_summary, sample_nuts, sampler_report)
+from jaxgaze._progress import progress_bar
 from jaxgaze.rays import GazeRays
 from jaxgaze.results import RESULTS, throw_if_failed
 
@@ -174,18 +176,108 @@ def _laplace_inverse_mass(start: dict, arrays: ModelArrays, prior: JointPrior):
     return laplace_inverse_mass(potential, start, _MIN_CURVATURE)
 
 
-def _params(draw: dict, centres, prior: JointPrior) -> dict:
-    """The model's parameters for one draw (locations from the latent offsets)."""
-    p = {k: draw[k] for k in ("bias", "cone_width", "alpha_person", "speaker_effect", "stay")}
-    if centres.shape[1]:
-        p["alpha_object"] = draw["alpha_object"]
-        p["locations"] = concurrence_locations(draw, centres, prior)
-    else:
-        p["alpha_object"] = jnp.zeros((), centres.dtype)
-        p["locations"] = centres
-    if "eye_offset" in draw:
-        p["eye_offset"] = draw["eye_offset"]
-    return p
+def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, wearers, progress: bool):
+    """Every person's rival bias modes, refined and compared by Laplace evidence (:mod:`jaxgaze.joint.rivals`).
+
+    In rounds: the profiles around the current mode (the start first) give rivals; each is
+    refined from the current mode, and one whose evidence beats the current mode's becomes
+    it. A round that moves the current mode scans again around it (at most
+    :data:`~jaxgaze.joint.rivals.MAX_ROUNDS` rounds), as a rival more than the scan's radius
+    from the start can be within it from the first rival. Returns the
+    :class:`~jaxgaze.joint.rivals.ModeSearch` and the chosen mode's inverse Hessian.
+    """
+    model = _model(prior, None)
+    P = arrays.present.shape[1]
+    offsets, n = rivals.scan_offsets()
+    people = np.ones(P, bool)
+    people[list(wearers)] = False
+    separation = math.radians(rivals.MIN_SEPARATION_DEG)
+
+    def score(theta):
+        inverse = _laplace_inverse_mass(theta, arrays, prior)
+        return rivals.log_evidence(model, theta, arrays, inverse), inverse
+
+    def known(person, bias) -> bool:
+        return any(np.linalg.norm(np.asarray(bias) - np.asarray(m[0]["bias"][person])) < separation for m in modes)
+
+    evidence, inverse = score(unconstrained)
+    modes = [(unconstrained, evidence, inverse, None)]  # (values, evidence, inverse Hessian, person moved)
+    current, tried = 0, 0
+    with progress_bar(progress, desc="joint rival modes") as bar:
+        for _ in range(rivals.MAX_ROUNDS):
+            base = modes[current][0]
+            params = model_params(rivals.constrained(base), arrays.location_centres, prior)
+            profile = np.asarray(rivals.bias_profile(params, arrays, prior, offsets))
+            found = [(i, delta) for i, delta, _ in rivals.profile_rivals(profile, offsets, n, people)
+                     if not known(i, np.asarray(base["bias"][i]) + delta)]
+            if not found:
+                break
+            bar.total = (bar.total or 0) + len(found)
+            start_of_round = current
+            for person, delta in found:
+                bar.update(1)
+                tried += 1
+                trial = {**base, "bias": base["bias"].at[person].add(jnp.asarray(delta, base["bias"].dtype))}
+                theta = _refine_start(trial, arrays, prior, True)
+                b = np.asarray(theta["bias"][person])
+                if not np.all(np.isfinite(b)) or known(person, b):
+                    continue
+                evidence, inverse = score(theta)
+                if not math.isfinite(evidence):
+                    continue
+                modes.append((theta, evidence, inverse, person))
+                if evidence > modes[current][1]:
+                    current = len(modes) - 1
+            if current == start_of_round:
+                break
+    best, best_evidence, best_inverse, _ = modes[current]
+    everything = np.array([m[1] for m in modes])
+    weights = np.exp(everything - np.logaddexp.reduce(everything))
+    alternatives = []
+    flat_index = _bias_index(best)
+    for m, (theta, evidence, inverse, person) in enumerate(modes):
+        if m == current or evidence < best_evidence - rivals.AMBIGUITY_MARGIN:
+            continue
+        who = person if person is not None else modes[current][3]
+        if who is None:
+            continue
+        sd = np.sqrt(np.diag(np.asarray(inverse))[flat_index + 2 * who: flat_index + 2 * who + 2])
+        values = model_params(rivals.constrained(theta), arrays.location_centres, prior)
+        membership = np.asarray(target_marginals(values, arrays, prior)[:, who])
+        alternatives.append(rivals.Alternative(int(who), np.asarray(theta["bias"][who]), sd,
+                                               float(evidence - best_evidence), float(weights[m]), membership))
+    start_bias = np.asarray(unconstrained["bias"])
+    moved = tuple(int(i) for i in np.flatnonzero(np.linalg.norm(np.asarray(best["bias"]) - start_bias, axis=-1)
+                                                 >= separation))
+    search = rivals.ModeSearch(best, tuple(alternatives), moved, tried, float(best_evidence))
+    return search, best_inverse
+
+
+def _bias_index(values: dict) -> int:
+    """Where ``bias`` starts in ``values`` flattened in ``jax.tree_util`` order (the inverse mass's order)."""
+    index = 0
+    for key in sorted(values):
+        if key == "bias":
+            return index
+        index += int(np.size(values[key]))
+    raise KeyError("bias")
+
+
+#: A person whose gaze the fit sends elsewhere this much more often (share of frames) than the model predicts,
+#: beyond the others' median excess, is flagged by the predictive check (:func:`_elsewhere_check`).
+ELSEWHERE_EXCESS = 0.2
+
+
+def _elsewhere_check(elsewhere: np.ndarray, predicted: np.ndarray) -> dict:
+    """Per person, from ``(S, P)`` draws: the observed and predicted shares of glances elsewhere and the flag.
+
+    A person in a wrong mode of their bias has their looks at people explained as glances elsewhere, far more
+    than the prior predicts and than the others have: flagged when the excess ``observed − predicted``
+    exceeds the median excess of everyone by :data:`ELSEWHERE_EXCESS`.
+    """
+    excess = (elsewhere - predicted).mean(axis=0)
+    return {"elsewhere_observed": elsewhere.mean(axis=0), "elsewhere_predicted": predicted.mean(axis=0),
+            "flagged": excess - np.median(excess) > ELSEWHERE_EXCESS}
 
 
 @functools.partial(jax.jit, static_argnames=("prior",))
@@ -196,14 +288,20 @@ def _posterior_summaries(key, draws: dict, arrays: ModelArrays, prior: JointPrio
     membership; the observed residual is the angle between the corrected gaze and
     the direction to that target, the replicated one the angle of a direction drawn
     from the cone around it (both over the width, then averaged). Glances elsewhere
-    have no direction to compare and are left out.
+    have no direction to compare and are left out. Also per person and draw: the share of
+    the frames the fit sends elsewhere, ``mean_t P(z_t = elsewhere | g)``, and the share the
+    model predicts, ``mean_t π_t(elsewhere)`` (the chain's share of a target over a stretch of
+    constant prior).
     """
     T, P = arrays.present.shape
+    frames = jnp.maximum(jnp.sum(arrays.present, axis=0), 1)
 
     def one(carry, key_and_draw):
         key, draw = key_and_draw
-        params = _params(draw, arrays.location_centres, prior)
+        params = model_params(draw, arrays.location_centres, prior)
         p = target_marginals(params, arrays, prior)
+        predicted = jnp.exp(target_log_prior(params, arrays, prior)[..., -1])
+        share = lambda x: jnp.sum(jnp.where(arrays.present, x, 0.0), axis=0) / frames  # noqa: E731
         lp = jnp.log(jnp.where(arrays.present[..., None], p, 1.0))
         people = p[..., :P]
         carry = (carry[0] + p, carry[1] + people * jnp.swapaxes(people, 1, 2))
@@ -222,15 +320,18 @@ def _posterior_summaries(key, draws: dict, arrays: ModelArrays, prior: JointPrio
         use = arrays.present & (z < targets.shape[2])
         count = jnp.maximum(jnp.sum(use, axis=0), 1)
         mean = lambda r: jnp.sum(jnp.where(use, r / width, 0.0), axis=0) / count  # noqa: E731
-        return carry, (mean(angle_between(d, u)), mean(angle_between(replicated.reshape(T, P, 3), u)))
+        return carry, (mean(angle_between(d, u)), mean(angle_between(replicated.reshape(T, P, 3), u)),
+                       share(p[..., -1]), share(predicted))
 
     n = jax.tree_util.tree_leaves(draws)[0].shape[0]
     C = P + arrays.location_centres.shape[1] + 1
     dtype = arrays.gaze_angles.dtype
     zero = (jnp.zeros((T, P, C), dtype), jnp.zeros((T, P, P), dtype))
-    (total, mutual), (observed, replicated) = jax.lax.scan(one, zero, (jax.random.split(key, n), draws))
+    (total, mutual), (observed, replicated, elsewhere, predicted) = jax.lax.scan(
+        one, zero, (jax.random.split(key, n), draws))
     mask = arrays.present[..., None]
-    return jnp.where(mask, total / n, 0.0), jnp.where(mask, mutual / n, 0.0), observed, replicated
+    return (jnp.where(mask, total / n, 0.0), jnp.where(mask, mutual / n, 0.0), observed, replicated, elsewhere,
+            predicted)
 
 
 class SVIDiagnostics(NamedTuple):
@@ -277,7 +378,12 @@ class JointPosterior(NamedTuple):
         start: the pipeline's answer the fit started from (a :class:`JointStart`).
         predictive_check: per person, the observed mean ``angle / width`` of the
             gaze to its target and its replicated draws (``observed (P,)``,
-            ``replicated (S, P)``, ``p_value (P,)``).
+            ``replicated (S, P)``, ``p_value (P,)``); the share of frames the fit sends elsewhere and
+            the share the model predicts (``elsewhere_observed``, ``elsewhere_predicted (P,)``), and
+            ``flagged (P,)``: people it explains much worse than the others (a wrong mode of their bias).
+        modes: the search for rival bias modes before sampling (:class:`~jaxgaze.joint.rivals.ModeSearch`;
+            ``None`` with wearers of head-mounted cameras, whose start is no mode). ``result`` is
+            ``ambiguous`` when it found an alternative the data cannot rule out (:attr:`alternatives`).
     """
 
     sampler: SamplerReport
@@ -291,6 +397,27 @@ class JointPosterior(NamedTuple):
     window: np.ndarray
     start: JointStart
     predictive_check: dict
+    modes: rivals.ModeSearch | None = None
+
+    @property
+    def alternatives(self) -> tuple:
+        """The posterior's other modes that the data cannot rule out (:class:`~jaxgaze.joint.rivals.Alternative`);
+        non-empty exactly when ``result`` is ``ambiguous`` or a failure hid it."""
+        return () if self.modes is None else self.modes.alternatives
+
+    @property
+    def message(self) -> str:
+        """One line on ``result``: its message, and for ``ambiguous`` who and which alternatives (degrees)."""
+        if self.result != RESULTS.ambiguous or not self.alternatives:
+            return RESULTS[self.result]
+        parts = []
+        for a in self.alternatives:
+            here = np.degrees(self.bias[a.person])
+            there = np.degrees(a.bias)
+            parts.append(f"{self.people[a.person]}'s bias is ({here[0]:+.1f}°, {here[1]:+.1f}°) or "
+                         f"({there[0]:+.1f}°, {there[1]:+.1f}°) with weight {a.weight:.2f}")
+        mixed = "" if self.sampler.result == RESULTS.successful else f"; and {RESULTS[self.sampler.result]}"
+        return "the data cannot tell two explanations apart: " + "; ".join(parts) + mixed
 
     @property
     def num_people(self) -> int:
@@ -462,11 +589,15 @@ def fit_joint(
                                concurrence_support=start.concurrence_support[keep])
         arrays, unconstrained = refined(start)
     K = start.num_concurrences
+    search = None
+    if at_mode:
+        search, inverse_hessian = _search_modes(unconstrained, arrays, prior, data.wearers, progress)
+        unconstrained = search.start
     if method == "nuts":
         model = _model(prior, None)
         batched = lambda a: jnp.broadcast_to(jnp.asarray(a), (num_chains,) + jnp.shape(a))  # noqa: E731
         init = {k: batched(v) for k, v in unconstrained.items()}
-        mass = batched(_laplace_inverse_mass(unconstrained, arrays, prior)) if at_mode else None
+        mass = batched(inverse_hessian) if at_mode else None
         draws, stats = sample_nuts(model, k_fit, tuple(batched(a) for a in arrays), init,
                                    num_warmup=int(num_warmup), num_samples=int(num_samples), dense_mass=True,
                                    inverse_mass_matrix=mass, progress=progress, description="joint NUTS")
@@ -482,14 +613,16 @@ def fit_joint(
     flat = {k: v.reshape((-1,) + v.shape[2:]) for k, v in draws.items()}
     if not all(np.all(np.isfinite(v)) for v in flat.values()):
         result = RESULTS.nonfinite
+    elif search is not None and search.alternatives:
+        result = RESULTS.ambiguous  # about the data, whatever the sampler did (the message says that too)
     pick = np.linspace(0, flat["bias"].shape[0] - 1, min(_MAX_PROBABILITY_DRAWS, flat["bias"].shape[0])).astype(int)
     latent = {k: jnp.asarray(v[pick], dtype) for k, v in flat.items() if k != "concurrence_locations"}
-    membership, mutual, observed, replicated = (np.asarray(a) for a in
-                                                _posterior_summaries(k_check, latent, arrays, prior))
+    membership, mutual, observed, replicated, elsewhere, predicted = (
+        np.asarray(a) for a in _posterior_summaries(k_check, latent, arrays, prior))
     check = {"observed": observed.mean(axis=0), "replicated": replicated,
-             "p_value": (replicated >= observed).mean(axis=0)}
+             "p_value": (replicated >= observed).mean(axis=0), **_elsewhere_check(elsewhere, predicted)}
     posterior = JointPosterior(sampler, result, method, data.people, data.fps, membership, mutual, flat,
-                               data.window, start, check)
+                               data.window, start, check, search)
     return throw_if_failed(posterior, result, "fit_joint") if throw else posterior
 
 

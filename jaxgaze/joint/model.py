@@ -54,7 +54,7 @@ from jaxgaze.cone import cone_direction_log_density
 from jaxgaze.geometry import unit
 
 __all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "candidate_log_probabilities",
-           "marginal_log_likelihood", "target_marginals", "concurrence_locations", "eye_positions"]
+           "marginal_log_likelihood", "target_marginals", "target_log_prior", "model_params", "concurrence_locations", "eye_positions"]
 
 #: Frames per block of the target chain (it restarts from the prior at each block).
 BLOCK_FRAMES = 64
@@ -131,6 +131,21 @@ def concurrence_locations(latent: dict, centres: Float[Array, "W K 3"], prior: J
     return locations
 
 
+def model_params(values: dict, centres: Float[Array, "W K 3"], prior: JointPrior) -> dict:
+    """The parameters the likelihood reads, from the latent sites' constrained values (one draw, or a mode):
+    locations from the concurrence offsets (:func:`concurrence_locations`), ``α_object = 0`` without concurrences."""
+    p = {k: values[k] for k in ("bias", "cone_width", "alpha_person", "speaker_effect", "stay")}
+    if centres.shape[1]:
+        p["alpha_object"] = values["alpha_object"]
+        p["locations"] = concurrence_locations(values, centres, prior)
+    else:
+        p["alpha_object"] = jnp.zeros((), centres.dtype)
+        p["locations"] = centres
+    if "eye_offset" in values:
+        p["eye_offset"] = values["eye_offset"]
+    return p
+
+
 def eye_positions(params: dict, arrays: ModelArrays) -> Float[Array, "T P 3"]:
     """Everyone's eye midpoints: as given, and for a wearer ``C_t + R_t c`` (camera centre plus the inferred offset)."""
     if not arrays.wearer_index.shape[0]:
@@ -201,6 +216,12 @@ def candidate_log_probabilities(params: dict, arrays: ModelArrays, prior: JointP
     """
     log_prior, log_lik, _, _ = _candidate_terms(params, arrays, prior)
     return log_prior + log_lik
+
+
+def target_log_prior(params: dict, arrays: ModelArrays, prior: JointPrior = JointPrior()) -> Float[Array, "T P C"]:
+    """``log π_ti(j)``: the prior of a new target, and the chain's share of ``j`` over a stretch of
+    constant ``π`` (Siegfried et al. 2017, Sec. 3.2). ``params`` as :func:`candidate_log_probabilities`."""
+    return _candidate_terms(params, arrays, prior)[0]
 
 
 def _blocks(num_frames: int):

@@ -35,7 +35,8 @@ Generative model, for one scene:
    ``turn_s``; each turn is followed by a gap uniform in ``gap_s`` (negative:
    the next speaker starts before the turn ends, both speak; positive:
    silence). The next speaker is drawn uniformly among the others in the
-   scene.
+   scene; with ``quiet_people = n > 0`` the last ``n`` people are drawn with
+   weight ``quiet_weight`` against 1 (people who speak rarely).
 3. **Per-person traits.** Bias ``b``: magnitude uniform in ``bias_deg``, in a
    uniformly random direction of the (yaw, tilt) plane. Cone width ``h``
    uniform in ``cone_width_deg``. Head fraction ``κ`` uniform in
@@ -215,6 +216,9 @@ class ConversationConfig(NamedTuple):
         dropout_s: length of a dropout.
         late_early_prob: probability that one person arrives late or leaves early.
         late_early_fraction: fraction of the scene that person misses.
+        quiet_people: the last ``quiet_people`` people speak rarely: they are the next speaker with
+            weight ``quiet_weight`` against 1 for the others (0: everyone alike).
+        quiet_weight: the next-speaker weight of a quiet person.
     """
 
     num_people_range: tuple[int, int] = (3, 8)
@@ -262,6 +266,8 @@ class ConversationConfig(NamedTuple):
     dropout_s: tuple[float, float] = (0.2, 1.5)
     late_early_prob: float = 0.3
     late_early_fraction: tuple[float, float] = (0.1, 0.3)
+    quiet_people: int = 0
+    quiet_weight: float = 0.1
 
 
 class Conversation(NamedTuple):
@@ -425,6 +431,8 @@ def _check_config(config: ConversationConfig) -> ConversationConfig:
     c["dropout_s"] = check_pair("dropout_s", config.dropout_s, lo=0.0, lo_open=True)
     c["late_early_prob"] = check_number("late_early_prob", config.late_early_prob, lo=0.0, hi=1.0)
     c["late_early_fraction"] = check_pair("late_early_fraction", config.late_early_fraction, lo=0.0, hi=0.9)
+    c["quiet_people"] = check_int("quiet_people", config.quiet_people, lo=0, hi=_MAX_PEOPLE)
+    c["quiet_weight"] = check_number("quiet_weight", config.quiet_weight, lo=0.0, hi=1.0, lo_open=True)
     return ConversationConfig(**c)
 
 
@@ -581,7 +589,10 @@ def _turns(rng, config, T, P, fps, in_scene):
         start = end + rng.uniform(*config.gap_s)
         d = length()
         others = [j for j in np.flatnonzero(in_scene[frame(start)]) if j != speaker]
-        if others:
+        if others and config.quiet_people:
+            weight = np.where(np.asarray(others) >= P - config.quiet_people, config.quiet_weight, 1.0)
+            speaker = int(rng.choice(others, p=weight / weight.sum()))
+        elif others:
             speaker = int(others[rng.integers(len(others))])
         elif not in_scene[frame(start), speaker]:
             break
