@@ -10,7 +10,7 @@ keys. Each scene is fitted twice by :func:`jaxgaze.joint.fit_joint` (NUTS):
 
 With ``--search off`` the rival-mode search is switched off (``PROFILE_MARGIN = −∞``: no
 rival is refined), which is the fit before issue 37 (the same start, refinement and mass
-matrix).
+matrix), and so is the pruning of the start's redundant concurrences.
 
 A person is **confidently wrong** when the fit says ``successful``, their bias is more than
 3° off and the truth lies more than 5 posterior sd away (Mahalanobis, from the draws).
@@ -19,7 +19,7 @@ the fit says ``ambiguous`` or ``not_mixed``.
 
 Usage::
 
-    python experiments/joint_rivals.py [--scenes 30] [--warmup 500] [--draws 500] [--search on|off] [--cache out.json]
+    python experiments/joint_rivals.py [--scenes 30] [--warmup 500] [--draws 500] [--duration 60] [--method nuts|svi] [--search on|off] [--cache out.json]
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ import time
 import jax
 import numpy as np
 
-from jaxgaze.joint import fit_joint, joint_data, joint_start, rivals
+from jaxgaze.joint import fit_joint, infer, joint_data, joint_start, rivals
 from jaxgaze.results import name
 from jaxgaze.simulate import simulate_conversation
 from jaxgaze.simulate.rivals import RIVAL_CONFIG, rival_bias
@@ -54,9 +54,9 @@ def _mahalanobis(draws, truth):
     return np.asarray(out)
 
 
-def _fit(data, scene, start, key, warmup, draws):
+def _fit(data, scene, start, key, warmup, draws, method="nuts"):
     t0 = time.time()
-    post = fit_joint(data, key=key, num_warmup=warmup, num_samples=draws, start=start)
+    post = fit_joint(data, key=key, method=method, num_warmup=warmup, num_samples=draws, num_steps=300, start=start)
     seconds = time.time() - t0
     error = _errors_deg(post.bias, scene.bias)
     distance = _mahalanobis(post.samples["bias"], scene.bias)
@@ -71,9 +71,9 @@ def _fit(data, scene, start, key, warmup, draws):
                              for a in post.alternatives]}
 
 
-def evaluate_scene(key, warmup, draws):
+def evaluate_scene(key, warmup, draws, duration_s=60.0, method="nuts"):
     k_scene, k_start, k_fit = jax.random.split(key, 3)
-    scene = simulate_conversation(k_scene, duration_s=60.0, config=RIVAL_CONFIG)
+    scene = simulate_conversation(k_scene, duration_s=duration_s, config=RIVAL_CONFIG)
     P = scene.num_people
     data = joint_data(scene.eye_positions, scene.R_world_from_head, scene.gaze_angles, present=scene.present,
                       speaking=scene.speaking, measurement_scale=scene.measurement_scale, fps=scene.fps)
@@ -83,8 +83,8 @@ def evaluate_scene(key, warmup, draws):
     bias = start.bias.copy()
     bias[person] = rival.bias
     return {"people": P, "rival_person": person, "rival_shift_deg": rival.shift_deg,
-            "pipeline": _fit(data, scene, start, k_fit, warmup, draws),
-            "rival": _fit(data, scene, start._replace(bias=bias), k_fit, warmup, draws)}
+            "pipeline": _fit(data, scene, start, k_fit, warmup, draws, method),
+            "rival": _fit(data, scene, start._replace(bias=bias), k_fit, warmup, draws, method)}
 
 
 def _summary(results):
@@ -110,11 +110,17 @@ def main(argv=None) -> dict:
     parser.add_argument("--warmup", type=int, default=500)
     parser.add_argument("--draws", type=int, default=500)
     parser.add_argument("--seed", type=int, default=37)
+    parser.add_argument("--duration", type=float, default=60.0, help="seconds per scene")
+    parser.add_argument("--method", choices=("nuts", "svi"), default="nuts",
+                        help="svi: 300 steps, a mean-field posterior (narrower than NUTS's: a stricter test of "
+                             "'confidently wrong')")
     parser.add_argument("--search", choices=("on", "off"), default="on")
     parser.add_argument("--cache", default=None, help="JSON file of per-scene results (resumes)")
     args = parser.parse_args(argv)
     if args.search == "off":
         rivals.PROFILE_MARGIN = -np.inf
+        infer._prune_concurrences = lambda values, arrays, prior, progress: (
+            values, arrays, list(range(arrays.location_centres.shape[1])))
     keys = jax.random.split(jax.random.key(args.seed), args.scenes)
     done = {}
     if args.cache and os.path.exists(args.cache):
@@ -124,7 +130,7 @@ def main(argv=None) -> dict:
         if i in done:
             continue
         t0 = time.time()
-        done[i] = evaluate_scene(keys[i], args.warmup, args.draws)
+        done[i] = evaluate_scene(keys[i], args.warmup, args.draws, args.duration, args.method)
         r = done[i]
         print(f"scene {i}: {r['people']} people, rival {r['rival_shift_deg']:.0f}° for person {r['rival_person']}; "
               f"pipeline {r['pipeline']['result']} max error {max(r['pipeline']['error']):.1f}°, "

@@ -24,8 +24,8 @@ mutual gaze and the shared gaze concurrences, in one model.
 """ + JOINT_INPUTS_FORMAT + """\
 OUT.nc is the posterior (arviz InferenceData as netCDF: arviz.from_netcdf).
 """ + JOINT_FRAMES_FORMAT + """\
-Exit status 0; 1 when the fit did not succeed (e.g. the sampler did not mix: files
-written, one line on stderr says why); 2 bad input (no output file); 130 Ctrl-C.
+Exit 0; 1 the fit did not succeed (files written; one line on stderr says why: e.g. the
+sampler did not mix, or two explanations of someone's gaze); 2 bad input; 130 Ctrl-C.
 """
 
 _DEFAULT_FPS = 10.0
@@ -66,8 +66,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def _number(option: str, text, parse):
-    """``parse(text)``; its error as a one-line :class:`CommandError` naming ``option``."""
+def _number(option: str, text, parse):  # parse(text); its error as a one-line CommandError naming option
     try:
         return None if text is None else parse(str(text))
     except argparse.ArgumentTypeError as error:
@@ -135,20 +134,21 @@ def _file_of(args, people, message: str):
 def _summary(posterior, data, written) -> str:
     bias, width = (np.asarray(a) * (180.0 / math.pi) for a in (posterior.bias, posterior.cone_width))
     stats = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in posterior.sampler.diagnostics._asdict().items())
+    check = (posterior.predictive_check[k] for k in ("elsewhere_observed", "elsewhere_predicted", "flagged"))
     return "\n".join([
         f"people: {', '.join(posterior.people)} ({data.num_frames} frames at {data.fps:g} fps, "
         + ("with speech)" if data.has_speech else "no speech)"),
         "bias (yaw, tilt) deg: " + "; ".join(f"{n} ({b[0]:+.2f}, {b[1]:+.2f})" for n, b in zip(posterior.people, bias)),
         "cone width deg: " + "; ".join(f"{n} {w:.2f}" for n, w in zip(posterior.people, width)),
-        f"concurrences: {posterior.num_concurrences}",
-        f"diagnostics ({posterior.method}): {stats}",
+        f"concurrences: {posterior.num_concurrences}; diagnostics ({posterior.method}): {stats}"] + [
+        f"predictive check: {n}'s gaze goes elsewhere in {o:.0%} of frames, the fit predicts {e:.0%} (a wrong mode?)"
+        for n, o, e, f in zip(posterior.people, *check) if f] + [
         f"written to {' and '.join(written)}"])
 
 
 def run(args) -> int:
     """``jaxgaze joint``: GAZE files and speech → :func:`~jaxgaze.joint.fit_joint` → OUT.nc (and --per-frame)."""
     import jax
-
     from jaxgaze.joint import fit_joint, joint_data
     from jaxgaze.results import succeeded
 

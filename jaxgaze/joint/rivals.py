@@ -17,10 +17,11 @@ before sampling:
    is a rival (at most :data:`MAX_RIVALS` per person, the best first).
 3. **Compare.** The start is refined again with that person's bias at the rival (both
    descents of the fit's start), and each distinct mode is scored by its Laplace
-   evidence ``−U(θ*) + ½ log det Σ`` (``U`` the potential, ``Σ`` the inverse Hessian in
-   numpyro's unconstrained space). The best mode is sampled; a mode whose evidence is
-   within :data:`AMBIGUITY_MARGIN` of the best (posterior weight ≥ 1/21 of it) is an
-   :class:`Alternative` the data cannot rule out, and the fit says ``ambiguous``. A rival
+   evidence ``−U(θ*) + ½ log det Σ + d/2 log 2π`` (``U`` the potential, ``Σ`` the inverse
+   Hessian in numpyro's unconstrained space). A mode whose evidence is within
+   :data:`AMBIGUITY_MARGIN` of the best (posterior weight ≥ 1/21 of it) is an
+   :class:`Alternative` the data cannot rule out, and the fit says ``ambiguous``; NUTS
+   samples the best mode and each alternative, mixed by weight. A rival
    that wins becomes the mode the next round scans around (at most :data:`MAX_ROUNDS`).
 """
 
@@ -90,6 +91,8 @@ class ModeSearch(NamedTuple):
         moved: people whose bias the chosen mode moved to a rival of the start.
         rivals_tried: rivals refined (0 when no profile had one).
         log_evidence: the chosen mode's Laplace log evidence.
+        alternative_starts: per alternative, its unconstrained values and inverse Hessian (where
+            :func:`~jaxgaze.joint.fit_joint` samples it).
     """
 
     start: dict
@@ -97,6 +100,7 @@ class ModeSearch(NamedTuple):
     moved: tuple[int, ...]
     rivals_tried: int
     log_evidence: float
+    alternative_starts: tuple = ()
 
 
 def scan_offsets(radius_deg: float = SCAN_RADIUS_DEG, step_deg: float = SCAN_STEP_DEG) -> tuple[np.ndarray, int]:
@@ -168,7 +172,8 @@ def constrained(unconstrained: dict) -> dict:
 
 
 def log_evidence(model, unconstrained: dict, arrays: ModelArrays, inverse_mass) -> float:
-    """Laplace log evidence ``−U(θ) + ½ log det Σ`` (the constant ``d/2 log 2π`` left out)."""
+    """Laplace log evidence ``−U(θ) + ½ log det Σ + d/2 log 2π`` (MacKay 2003, eq. 28.10): comparable between
+    models of different dimension ``d`` (a concurrence more or less)."""
     energy = potential_energy(model, tuple(arrays), {}, unconstrained)
     _, logdet = jnp.linalg.slogdet(inverse_mass)
-    return float(-energy + 0.5 * logdet)
+    return float(-energy + 0.5 * logdet + 0.5 * inverse_mass.shape[0] * math.log(2 * math.pi))

@@ -26,6 +26,7 @@ from jaxgaze.cli import main
 from jaxgaze.io.gaze import GAZE_COLUMNS
 from jaxgaze.io.tools.openface import OPENFACE_COLUMNS
 from jaxgaze.io.text import atomic_path
+from jaxgaze.joint.rivals import Alternative, ModeSearch
 from jaxgaze.poses import matrices_to_quaternions
 from jaxgaze.results import RESULTS, succeeded
 
@@ -167,6 +168,31 @@ def test_joint_exit_status_follows_the_fit(fitted, scene_files, tmp_path, capsys
         assert (status, stderr) == (0, "")
     else:
         assert status == 1 and stderr.splitlines() == [f"jaxgaze joint: {RESULTS[RESULTS.not_mixed]}"]
+
+
+def test_joint_ambiguous_exits_1_naming_the_person_and_the_alternatives(fitted, scene_files, tmp_path, capsys,
+                                                                        monkeypatch):
+    post = fitted["posterior"]
+    T, C = post.membership.shape[0], len(post.candidates)
+    membership = np.zeros((T, C))
+    membership[:, post.candidates.index("cat")] = 1.0
+    other = Alternative(1, post.bias[1] + np.radians([20.0, 0.0]), np.radians([0.5, 0.5]), -0.4, 0.4, membership)
+    check = {**post.predictive_check, "flagged": np.array([False, True, False]),
+             "elsewhere_observed": np.array([0.1, 0.95, 0.1]), "elsewhere_predicted": np.array([0.1, 0.06, 0.1])}
+    ambiguous = post._replace(result=RESULTS.ambiguous, modes=ModeSearch({"bias": post.bias}, (other,), (), 1, 0.0),
+                              predictive_check=check)
+    monkeypatch.setattr(jaxgaze.joint, "fit_joint", lambda *a, **k: ambiguous)
+    out, frames = tmp_path / "j.nc", tmp_path / "f.csv"
+    status, stdout, stderr = run_main(capsys, ["joint", *scene_files["gaze"], "--out", out, "--per-frame", frames])
+    (line,) = stderr.splitlines()
+    assert status == 1 and line.startswith("jaxgaze joint: the data cannot tell two explanations apart: ben's bias")
+    here, there = np.degrees(post.bias[1]), np.degrees(other.bias)
+    assert f"({here[0]:+.1f}°, {here[1]:+.1f}°) or ({there[0]:+.1f}°, {there[1]:+.1f}°) with weight 0.40" in line
+    assert "predictive check: ben's gaze goes elsewhere in 95% of frames, the fit predicts 6%" in stdout
+    with open(frames, newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert {r["alternative_target"] for r in rows if r["person"] == "ben" and r["present"] == "1"} == {"cat"}
+    assert {r["alternative_target"] for r in rows if r["person"] != "ben"} == {""}
 
 
 def test_joint_ctrl_c_leaves_no_file(fitted, scene_files, tmp_path, capsys, monkeypatch):
