@@ -252,8 +252,13 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
 
     score = functools.partial(_laplace_evidence, arrays=arrays, prior=prior)
 
-    def known(person, bias) -> bool:
-        return any(np.linalg.norm(np.asarray(bias) - np.asarray(m[0]["bias"][person])) < separation for m in modes)
+    def known(bias) -> bool:  # every person's bias within the separation of one found mode's
+        return any(np.all(np.linalg.norm(bias - np.asarray(m[0]["bias"]), axis=-1) < separation) for m in modes)
+
+    def shifted(bias, person, delta):
+        out = np.array(bias)
+        out[person] += delta
+        return out
 
     evidence, inverse = score(unconstrained)
     modes = [(unconstrained, evidence, inverse, None)]  # (values, evidence, inverse Hessian, person moved)
@@ -264,7 +269,7 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
             params = model_params(rivals.constrained(base), arrays.location_centres, prior)
             profile = np.asarray(rivals.bias_profile(params, arrays, prior, offsets))
             found = [(i, delta) for i, delta, _ in rivals.profile_rivals(profile, offsets, n, people)
-                     if not known(i, np.asarray(base["bias"][i]) + delta)]
+                     if not known(shifted(base["bias"], i, delta))]
             if not found:
                 break
             bar.total = (bar.total or 0) + len(found)
@@ -274,8 +279,8 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
                 tried += 1
                 trial = {**base, "bias": base["bias"].at[person].add(jnp.asarray(delta, base["bias"].dtype))}
                 theta = _refine_start(trial, arrays, prior, True)
-                b = np.asarray(theta["bias"][person])
-                if not np.all(np.isfinite(b)) or known(person, b):
+                b = np.asarray(theta["bias"])
+                if not np.all(np.isfinite(b)) or known(b):
                     continue
                 evidence, inverse = score(theta)
                 if not math.isfinite(evidence):
@@ -290,12 +295,11 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
     weights = np.exp(everything - np.logaddexp.reduce(everything))
     alternatives, starts = [], []
     flat_index = _bias_index(best)
-    for m, (theta, evidence, inverse, person) in enumerate(modes):
+    for m, (theta, evidence, inverse, _) in enumerate(modes):
         if m == current or evidence < best_evidence - rivals.AMBIGUITY_MARGIN:
             continue
-        who = person if person is not None else modes[current][3]
-        if who is None:
-            continue
+        apart = np.linalg.norm(np.asarray(theta["bias"]) - np.asarray(best["bias"]), axis=-1)
+        who = int(np.argmax(apart))  # the person the two explanations differ on most
         sd = np.sqrt(np.diag(np.asarray(inverse))[flat_index + 2 * who: flat_index + 2 * who + 2])
         values = model_params(rivals.constrained(theta), arrays.location_centres, prior)
         membership = np.asarray(target_marginals(values, arrays, prior)[:, who])

@@ -16,7 +16,7 @@ from jaxgaze.bias.looking import direction_to_gaze_angles
 from jaxgaze.geometry import head_pose_to_rotation
 from jaxgaze.io.joint import write_joint_frames, write_joint_netcdf
 from jaxgaze.joint import JointPrior, fit_joint, joint_data, joint_start
-from jaxgaze.joint.infer import _arrays as model_arrays
+from jaxgaze.joint.infer import _arrays as model_arrays, _mixture
 from jaxgaze.joint import rivals
 from jaxgaze.joint.rivals import bias_profile, profile_rivals, scan_offsets
 from jaxgaze.results import RESULTS, FitError
@@ -96,6 +96,16 @@ def test_a_recording_that_cannot_decide_is_ambiguous_with_both_explanations(unde
     with pytest.raises(FitError) as raised:
         fit_joint(data, key=jax.random.key(4), num_warmup=150, num_samples=150, throw=True)
     assert raised.value.result == RESULTS.ambiguous and raised.value.fit.alternatives
+
+
+def test_the_mixture_takes_each_mode_in_proportion_to_its_weight():
+    runs = [({"bias": np.full((2, 10, 3), float(m))}, {"diverging": np.full((2, 10), m)}) for m in range(3)]
+    draws, stats = _mixture(runs, np.array([0.52, 0.31, 0.17]), 10)
+    assert draws["bias"].shape == (2, 10, 3) and stats["diverging"].shape == (2, 10)
+    for chain in range(2):  # round(5.2, 3.1, 1.7) = (5, 3, 2), in every chain, draws and stats alike
+        assert np.bincount(draws["bias"][chain, :, 0].astype(int)).tolist() == [5, 3, 2]
+        assert np.bincount(stats["diverging"][chain]).tolist() == [5, 3, 2]
+    assert _mixture(runs[:1], np.array([1.0]), 10) is runs[0]
 
 
 def test_the_per_frame_table_and_netcdf_hold_the_alternatives(undecided, tmp_path):
