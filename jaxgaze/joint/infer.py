@@ -261,7 +261,7 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
         return out
 
     evidence, inverse = score(unconstrained)
-    modes = [(unconstrained, evidence, inverse, None)]  # (values, evidence, inverse Hessian, person moved)
+    modes = [(unconstrained, evidence, inverse)]  # (values, evidence, inverse Hessian)
     current, tried = 0, 0
     with progress_bar(progress, desc="joint rival modes") as bar:
         for _ in range(rivals.MAX_ROUNDS):
@@ -285,17 +285,17 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
                 evidence, inverse = score(theta)
                 if not math.isfinite(evidence):
                     continue
-                modes.append((theta, evidence, inverse, person))
+                modes.append((theta, evidence, inverse))
                 if evidence > modes[current][1]:
                     current = len(modes) - 1
             if current == start_of_round:
                 break
-    best, best_evidence, best_inverse, _ = modes[current]
+    best, best_evidence, best_inverse = modes[current]
     everything = np.array([m[1] for m in modes])
     weights = np.exp(everything - np.logaddexp.reduce(everything))
     alternatives, starts = [], []
     flat_index = _bias_index(best)
-    for m, (theta, evidence, inverse, _) in enumerate(modes):
+    for m, (theta, evidence, inverse) in enumerate(modes):
         if m == current or evidence < best_evidence - rivals.AMBIGUITY_MARGIN:
             continue
         apart = np.linalg.norm(np.asarray(theta["bias"]) - np.asarray(best["bias"]), axis=-1)
