@@ -122,7 +122,7 @@ def main(argv=None) -> dict:
     if args.search == "off":
         rivals.PROFILE_MARGIN = -np.inf
         infer._prune_concurrences = lambda values, arrays, prior, progress: (
-            values, arrays, list(range(arrays.location_centres.shape[1])))
+            values, arrays, list(range(arrays.location_centres.shape[1])), None)
     keys = jax.random.split(jax.random.key(args.seed), args.scenes)
     done = {}
     if args.cache and os.path.exists(args.cache):

@@ -211,11 +211,11 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
     with an ESS of 10 in 100 (against 7 steps and 113 with one slot). The
     evidence counts the extra slot's volume against the little it explains: one slot
     is dropped at a time, the one whose removal raises the evidence most, each removal
-    refined from the current mode (:func:`_to_mode`). Returns the values, the arrays and the slots kept
-    (indices into the start's).
+    refined from the current mode (:func:`_to_mode`). Returns the values, the arrays, the slots kept
+    (indices into the start's) and the kept mode's ``(evidence, inverse Hessian)`` (for :func:`_search_modes`).
     """
     kept = list(range(arrays.location_centres.shape[1]))
-    evidence, _ = _laplace_evidence(unconstrained, arrays, prior)
+    scored = _laplace_evidence(unconstrained, arrays, prior)
     with progress_bar(progress, desc="joint concurrences") as bar:
         while kept:
             best = None
@@ -224,17 +224,18 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
                 bar.update(1)
                 values, smaller = _without_concurrence(unconstrained, arrays, k)
                 values = _to_mode(values, smaller, prior)
-                trial, _ = _laplace_evidence(values, smaller, prior)
-                if math.isfinite(trial) and trial > evidence and (best is None or trial > best[0]):
+                trial = _laplace_evidence(values, smaller, prior)
+                if math.isfinite(trial[0]) and trial[0] > scored[0] and (best is None or trial[0] > best[0][0]):
                     best = (trial, k, values, smaller)
             if best is None:
                 break
-            evidence, k, unconstrained, arrays = best
+            scored, k, unconstrained, arrays = best
             del kept[k]
-    return unconstrained, arrays, kept
+    return unconstrained, arrays, kept, scored
 
 
-def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, wearers, progress: bool):
+def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, wearers, progress: bool,
+                  scored=None):
     """Every person's rival bias modes, refined and compared by Laplace evidence (:mod:`jaxgaze.joint.rivals`).
 
     In rounds: the profiles around the current mode (the start first) give rivals; each is
@@ -242,7 +243,8 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
     it. A round that moves the current mode scans again around it (at most
     :data:`~jaxgaze.joint.rivals.MAX_ROUNDS` rounds), as a rival more than the scan's radius
     from the start can be within it from the first rival. Returns the
-    :class:`~jaxgaze.joint.rivals.ModeSearch` and the chosen mode's inverse Hessian.
+    :class:`~jaxgaze.joint.rivals.ModeSearch` and the chosen mode's inverse Hessian. ``scored``: the start's
+    ``(evidence, inverse Hessian)`` when already computed (by :func:`_prune_concurrences`).
     """
     P = arrays.present.shape[1]
     offsets, n = rivals.scan_offsets()
@@ -260,7 +262,7 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
         out[person] += delta
         return out
 
-    evidence, inverse = score(unconstrained)
+    evidence, inverse = score(unconstrained) if scored is None else scored
     modes = [(unconstrained, evidence, inverse)]  # (values, evidence, inverse Hessian)
     current, tried = 0, 0
     with progress_bar(progress, desc="joint rival modes") as bar:
@@ -655,12 +657,12 @@ def fit_joint(
         arrays, unconstrained = refined(start)
     search = None
     if at_mode:
-        unconstrained, arrays, kept = _prune_concurrences(unconstrained, arrays, prior, progress)
+        unconstrained, arrays, kept, scored = _prune_concurrences(unconstrained, arrays, prior, progress)
         start = start._replace(concurrence_centres=start.concurrence_centres[:, kept],
                                concurrence_support=start.concurrence_support[kept])
     K = start.num_concurrences
     if at_mode:
-        search, inverse_hessian = _search_modes(unconstrained, arrays, prior, data.wearers, progress)
+        search, inverse_hessian = _search_modes(unconstrained, arrays, prior, data.wearers, progress, scored)
         unconstrained = search.start
     if method == "nuts":
         modes = [(unconstrained, inverse_hessian if at_mode else None)] + list(search.alternative_starts if search else ())
