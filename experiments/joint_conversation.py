@@ -19,7 +19,10 @@ and object locations.
 
 Usage::
 
-    python experiments/joint_conversation.py [--scenes 30] [--warmup 500] [--draws 500] [--cache out.json]
+    python experiments/joint_conversation.py [--scenes 30] [--warmup 500] [--draws 500] [--cache out.json] [--part I/N]
+
+With ``--part I/N`` a process fits only the scenes whose index is I modulo N (one process per core, each with its
+own ``--cache``); ``--cache`` may be given several times, and the table is printed once every scene has a result.
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ from jaxgaze.concurrence import find_concurrences_over_frames
 from jaxgaze.joint import (JointStart, expected_calibration_error, fit_joint, joint_data, nearest_target,
                            ray_intersection)
 from jaxgaze.joint.init import DEFAULT_CONCURRENCE_OPTIONS, corrected_rays, initial_concurrences, speaker_rule_bias
-from jaxgaze.results import succeeded
+from jaxgaze.results import name, succeeded
 from jaxgaze.simulate import simulate_conversations
 
 CHI2_3_90 = 6.251388631170325  # 90% quantile of χ² with 3 degrees of freedom
@@ -162,14 +165,21 @@ def evaluate_scene(scene, key, warmup, draws):
         covered.append(e @ np.linalg.solve(slots["covariance"][t, j], e) <= CHI2_3_90)
     bias_iv = post.interval("bias")
     h_iv = post.interval("cone_width")
-    rows["joint"] = {"bias_error": _angle_error_deg(post.bias, scene.bias).tolist(),
+    bias_error = _angle_error_deg(post.bias, scene.bias)
+    distance = [float(np.sqrt(d @ np.linalg.solve(np.cov(x.T) + 1e-12 * np.eye(2), d)))
+                for d, x in zip(scene.bias - post.samples["bias"].mean(0), np.moveaxis(post.samples["bias"], 1, 0))]
+    rows["joint"] = {"bias_error": bias_error.tolist(),
                      "count_right": float(np.mean(post.concurrence_counts() == true_count)),
                      "loc_errors": errors, "loc_cover": [bool(c) for c in covered],
                      "accuracy": float(np.mean(cat[present] == truth[present])),
                      "confidence": conf[present].tolist(), "correct": correct[present].tolist(),
                      "bias_cover": ((scene.bias >= bias_iv[..., 0]) & (scene.bias <= bias_iv[..., 1])).ravel().tolist(),
                      "h_cover": ((scene.cone_width >= h_iv[..., 0]) & (scene.cone_width <= h_iv[..., 1])).tolist(),
-                     "seconds": seconds, "result": str(succeeded(post)), "diagnostics": post.sampler.diagnostics._asdict(),
+                     "seconds": seconds, "result": str(succeeded(post)), "result_name": name(post.result),
+                     "confidently_wrong": int(sum(name(post.result) == "successful" and e > 3.0 and m > 5.0
+                                                  for e, m in zip(bias_error, distance))),
+                     "diagnostics": post.sampler.diagnostics._asdict(),
+                     "flagged": post.predictive_check["flagged"].tolist(), "alternatives": len(post.alternatives),
                      "num_concurrences": K}
 
     # 4: oracle
@@ -202,6 +212,10 @@ def _summary(results):
             row["bias_cover"] = float(np.mean(np.concatenate([r["bias_cover"] for r in rs])))
             row["h_cover"] = float(np.mean(np.concatenate([r["h_cover"] for r in rs])))
             row["mixed"] = int(sum(r["result"] == "True" for r in rs))
+            row["confidently_wrong"] = int(sum(r.get("confidently_wrong", 0) for r in rs))
+            row["flagged_people"] = int(sum(sum(r.get("flagged", [])) for r in rs))
+            row["results"] = {k: sum(r.get("result_name") == k for r in rs) for k in sorted({r.get("result_name", "?")
+                                                                                          for r in rs})}
             row["seconds"] = float(np.mean([r["seconds"] for r in rs]))
         if "loc_cover" in rs[0]:
             covers = np.concatenate([r["loc_cover"] for r in rs] + [[]])
@@ -222,7 +236,9 @@ def _print(table, n):
               f"{f(r['accuracy'], '.3f'):>11}{f(r.get('ece', math.nan), '.3f'):>7}{f(r.get('bias_cover', math.nan), '.2f'):>7}"
               f"{f(r.get('h_cover', math.nan), '.2f'):>7}{f(r.get('loc_cover', math.nan), '.2f'):>7}")
     j = table["joint"]
-    print(f"\njoint: {j['mixed']}/{n} runs passed the diagnostics; {j['seconds']:.0f} s per scene on average")
+    print(f"\njoint: {j['mixed']}/{n} runs passed the diagnostics; {j['seconds']:.0f} s per scene on average; "
+          f"results {j['results']}; confidently wrong people {j['confidently_wrong']}; "
+          f"people flagged by the predictive check {j['flagged_people']}")
 
 
 def main(argv=None) -> dict:
@@ -231,26 +247,33 @@ def main(argv=None) -> dict:
     parser.add_argument("--warmup", type=int, default=500)
     parser.add_argument("--draws", type=int, default=500)
     parser.add_argument("--seed", type=int, default=2026)
-    parser.add_argument("--cache", default=None, help="JSON file of per-scene results (resumes)")
+    parser.add_argument("--cache", action="append", default=[],
+                        help="JSON file of per-scene results (resumes; written to the first, all are read)")
+    parser.add_argument("--part", default="0/1", help="I/N: only the scenes whose index is I modulo N")
     args = parser.parse_args(argv)
     scenes = simulate_conversations(jax.random.key(args.seed), args.scenes)
     keys = jax.random.split(jax.random.key(args.seed + 1), args.scenes)
     done = {}
-    if args.cache and os.path.exists(args.cache):
-        with open(args.cache) as f:
-            done = {int(k): v for k, v in json.load(f).items()}
+    for path in args.cache:
+        if os.path.exists(path):
+            with open(path) as f:
+                done.update({int(k): v for k, v in json.load(f).items()})
+    part, parts = (int(x) for x in args.part.split("/"))
     for i, scene in enumerate(scenes):
-        if i in done:
+        if i in done or i % parts != part:
             continue
         t0 = time.time()
         done[i] = evaluate_scene(scene, keys[i], args.warmup, args.draws)
+        jax.clear_caches()  # each scene's shapes compile their own programs (the process's memory maps run out)
         print(f"scene {i}: {scene.num_people} people, {scene.num_objects} objects, {time.time() - t0:.0f} s; "
               f"joint acc {done[i]['joint']['accuracy']:.3f} vs Spk {done[i]['pipeline, Spk-LMedS']['accuracy']:.3f}",
               flush=True)
         if args.cache:
-            with open(args.cache + ".tmp", "w") as f:
+            with open(args.cache[0] + ".tmp", "w") as f:
                 json.dump({str(k): v for k, v in done.items()}, f, default=float)
-            os.replace(args.cache + ".tmp", args.cache)
+            os.replace(args.cache[0] + ".tmp", args.cache[0])
+    if len(done) < args.scenes:
+        return {}
     table = _summary([done[i] for i in range(args.scenes)])
     _print(table, args.scenes)
     return table

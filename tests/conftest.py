@@ -5,6 +5,7 @@ The slow tier: ``pytest -m "not slow"`` leaves out the notebooks and the files a
 NUTS posteriors, coverage studies): under 5 minutes on 2 cores, for everyday work. ``pytest`` runs all.
 """
 
+import gc
 import os
 import pathlib
 
@@ -180,3 +181,18 @@ def _pin_worker_to_one_core() -> None:
 
 
 _pin_worker_to_one_core()
+
+
+#: Memory maps a test process may hold before its compiled programs are dropped (Linux allows 65,530 a process,
+#: ``vm.max_map_count``). Every XLA:CPU executable maps its own code pages: tests/joint/test_rivals.py alone
+#: reaches 16,000, and a worker that had run other joint files before it died inside LLVM ("Cannot allocate
+#: memory") in CI on 2026-12-04. ``jax.clear_caches()`` with a collection gives them back (13,416 → 1,632).
+MAX_MAPS_BEFORE_CLEARING = 30_000
+
+
+def pytest_runtest_teardown(item, nextitem):
+    """Drop compiled programs after a test when the process nears the kernel's limit on memory maps."""
+    maps = pathlib.Path("/proc/self/maps")
+    if maps.exists() and sum(1 for _ in maps.open()) > MAX_MAPS_BEFORE_CLEARING:
+        jax.clear_caches()
+        gc.collect()

@@ -76,7 +76,9 @@ Generative model, for one scene:
    the target point, rotated on its tangent plane by ``δ = h z₁ + s z₂``,
    ``z₁, z₂ ~ N(0, I₂)`` i.i.d. per frame (Park's cone, and the estimator's
    extra noise of sd ``s = measurement_scale``, drawn per frame uniformly in
-   ``measurement_scale_deg``). The angle between ``v*`` and ``u`` is ``‖δ‖``,
+   ``measurement_scale_deg``). With ``held_cone_share = c > 0`` the cone's part
+   is ``√(1 − c) z₁ + √c z₀``, ``z₀`` drawn once per fixation segment: the eyes
+   rest on one spot of the target for the fixation (correlated residuals). The angle between ``v*`` and ``u`` is ``‖δ‖``,
    Rayleigh with scale ``sqrt(h² + s²)``.
 8. **Measured gaze.** ``g = Φ⁻¹(R_world_from_headᵀ v*) − b`` (yaw wrapped to
    (−π, π]): the estimator reports gaze relative to the *reported* head pose,
@@ -219,6 +221,8 @@ class ConversationConfig(NamedTuple):
         quiet_people: the last ``quiet_people`` people speak rarely: they are the next speaker with
             weight ``quiet_weight`` against 1 for the others (0: everyone alike).
         quiet_weight: the next-speaker weight of a quiet person.
+        held_cone_share: the share of the cone's variance ``h²`` held for a whole fixation segment
+            (0: every frame's cone draw is independent; step 7).
     """
 
     num_people_range: tuple[int, int] = (3, 8)
@@ -268,6 +272,7 @@ class ConversationConfig(NamedTuple):
     late_early_fraction: tuple[float, float] = (0.1, 0.3)
     quiet_people: int = 0
     quiet_weight: float = 0.1
+    held_cone_share: float = 0.0
 
 
 class Conversation(NamedTuple):
@@ -433,6 +438,7 @@ def _check_config(config: ConversationConfig) -> ConversationConfig:
     c["late_early_fraction"] = check_pair("late_early_fraction", config.late_early_fraction, lo=0.0, hi=0.9)
     c["quiet_people"] = check_int("quiet_people", config.quiet_people, lo=0, hi=_MAX_PEOPLE)
     c["quiet_weight"] = check_number("quiet_weight", config.quiet_weight, lo=0.0, hi=1.0, lo_open=True)
+    c["held_cone_share"] = check_number("held_cone_share", config.held_cone_share, lo=0.0, hi=1.0)
     return ConversationConfig(**c)
 
 
@@ -612,7 +618,7 @@ def _episodes(rng, config, duration, K):
 
 
 def _focus(rng, config, T, P, K, fps, eyes, body_yaw, present, speaking, active):
-    """Targets ``(T, P)`` and target points ``(T, P, 3)`` by fixation segments (step 5)."""
+    """Targets ``(T, P)``, target points ``(T, P, 3)`` and the fixation segment of each frame ``(T, P)`` (step 5)."""
     deg = math.pi / 180
     boost = math.exp(config.speaker_beta)
     # Frames where the speaking set or the active episode changes: forced re-draws, per-person delay.
@@ -627,6 +633,8 @@ def _focus(rng, config, T, P, K, fps, eyes, body_yaw, present, speaking, active)
 
     target = np.full((T, P), ELSEWHERE, np.int64)
     points = np.full((T, P, 3), np.nan)
+    segment = np.zeros((T, P), np.int64)
+    count = 0
     w_obj = np.full(K, config.w_object)
     for i in range(P):
         cur, seg_end, point = None, 0, None
@@ -645,6 +653,7 @@ def _focus(rng, config, T, P, K, fps, eyes, body_yaw, present, speaking, active)
                 choice = min(int(np.searchsorted(c, rng.uniform() * c[-1], side="right")), P + K)
                 cur = ELSEWHERE if choice == P + K else choice
                 seg_end = t + max(1, int(round(rng.uniform(*config.fixation_s) * fps)))
+                count += 1
                 if cur == ELSEWHERE:
                     yaw = body_yaw[i] + rng.uniform(-1.0, 1.0) * config.elsewhere_yaw_deg * deg
                     pitch = rng.uniform(*config.elsewhere_elevation_deg) * deg
@@ -652,11 +661,12 @@ def _focus(rng, config, T, P, K, fps, eyes, body_yaw, present, speaking, active)
                         yaw, pitch
                     )
             target[t, i] = cur
+            segment[t, i] = count
             if 0 <= cur < P:
                 points[t, i] = eyes[t, cur]
             elif cur == ELSEWHERE:
                 points[t, i] = point
-    return target, points  # object points are filled in by the caller
+    return target, points, segment  # object points are filled in by the caller
 
 
 def _upright_frame(forward):
@@ -802,7 +812,7 @@ def simulate_conversation(
         active[(times >= start) & (times < end)] = int(k)
 
     # 5. Visual focus.
-    target, points = _focus(rng, config, T, P, K, fps, eyes, body_yaw, present, speaking, active)
+    target, points, segment = _focus(rng, config, T, P, K, fps, eyes, body_yaw, present, speaking, active)
     on_object = target >= P
     points[on_object] = objects[target[on_object] - P]
 
@@ -822,6 +832,9 @@ def simulate_conversation(
     # 7. True gaze: the direction to the target rotated on its tangent plane by δ = h z₁ + s z₂.
     scale = rng.uniform(*config.measurement_scale_deg, (T, P)) * deg
     z = rng.standard_normal((2, T, P, 2))
+    if config.held_cone_share > 0:  # one draw per fixation segment (only then: other scenes keep their stream)
+        held = rng.standard_normal((int(segment.max()) + 1, 2))[segment]
+        z[0] = math.sqrt(1.0 - config.held_cone_share) * z[0] + math.sqrt(config.held_cone_share) * held
     delta = cone[None, :, None] * z[0] + scale[..., None] * z[1]
     u = sight
     e1 = _unit(np.cross(np.array([0.0, 0.0, 1.0]), u))
