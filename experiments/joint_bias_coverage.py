@@ -30,8 +30,7 @@ import numpy as np
 
 from jaxgaze.joint import fit_joint, joint_data
 from jaxgaze.results import name
-from jaxgaze.simulate import simulate_conversation
-from jaxgaze.simulate.conversation import ConversationConfig
+from jaxgaze.simulate import ConversationConfig, simulate_conversation
 
 
 def _wrapped(d):

@@ -143,6 +143,26 @@ def test_gaze_reconstruction(scenes):
     assert np.mean(ratios**2) == pytest.approx(2.0, rel=0.1)
 
 
+
+def test_held_cone_share_holds_the_cone_offset_for_a_fixation():
+    """``held_cone_share = 1``: the angle to the target stays the same through each fixation (frames in a row
+    on one target; a new segment on the same target is rare); 0 draws it afresh each frame. Only the held
+    draws are added: the targets are those of the scene without them."""
+    config = dict(measurement_scale_deg=(0.0, 0.0))
+    scenes = [simulate_conversation(jax.random.key(4), num_people=5, duration_s=30.0,
+                                    config=ConversationConfig(held_cone_share=c, **config)) for c in (0.0, 1.0)]
+    assert np.array_equal(scenes[0].target, scenes[1].target)
+    same = []
+    for c in scenes:
+        angle = _angle(_unit(c.target_positions - c.eye_positions), c.true_gaze_directions)
+        kept = c.present[1:] & c.present[:-1] & (c.target[1:] == c.target[:-1])
+        same.append(np.mean(np.abs(angle[1:] - angle[:-1])[kept] < 1e-9))
+        sigma = angle[c.present] / np.broadcast_to(c.cone_width, c.present.shape)[c.present]
+        assert np.mean(sigma ** 2) == pytest.approx(2.0, rel=0.35)  # the same Rayleigh marginal
+    assert same[0] < 0.01 and same[1] > 0.9
+    with pytest.raises(ValueError, match="held_cone_share"):
+        conversation_config(held_cone_share=1.5)
+
 def test_targets_and_presence(scenes):
     for c in scenes:
         P, K = c.num_people, c.num_objects
