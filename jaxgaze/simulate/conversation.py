@@ -78,8 +78,9 @@ Generative model, for one scene:
    extra noise of sd ``s = measurement_scale``, drawn per frame uniformly in
    ``measurement_scale_deg``). With ``held_cone_share = c > 0`` the cone's part
    is ``√(1 − c) z₁ + √c z₀``, ``z₀`` drawn once per fixation segment: the eyes
-   rest on one spot of the target for the fixation (correlated residuals). The angle between ``v*`` and ``u`` is ``‖δ‖``,
-   Rayleigh with scale ``sqrt(h² + s²)``.
+   rest on one spot of the target for the fixation (correlated residuals). The
+   angle between ``v*`` and ``u`` is ``‖δ‖``, Rayleigh with scale ``sqrt(h² + s²)``
+   in every frame.
 8. **Measured gaze.** ``g = Φ⁻¹(R_world_from_headᵀ v*) − b`` (yaw wrapped to
    (−π, π]): the estimator reports gaze relative to the *reported* head pose,
    so ``R_world_from_head Φ(g + b) = v*`` exactly and the tracker error only
