@@ -28,6 +28,7 @@ import time
 import jax
 import numpy as np
 
+from _runs import read_caches, write_cache
 from jaxgaze.joint import fit_joint, joint_data
 from jaxgaze.results import name
 from jaxgaze.simulate import ConversationConfig, simulate_conversation
@@ -86,11 +87,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--part", default="0/1", help="I/N: only the runs whose index is I modulo N")
     args = parser.parse_args(argv)
     keys = jax.random.split(jax.random.key(args.seed), args.scenes)  # the same scenes for every share
-    done = {}
-    for path in args.cache:
-        if os.path.exists(path):
-            with open(path) as f:
-                done.update(json.load(f))
+    done = read_caches(args.cache)
     part, parts = (int(x) for x in args.part.split("/"))
     runs = [(share, i) for share in args.shares for i in range(args.scenes)]
     for n, (share, i) in enumerate(runs):
@@ -103,10 +100,7 @@ def main(argv=None) -> dict:
         r = done[label]
         print(f"share {share:g} scene {i}: {r['people']} people, {r['result']}, |z| max {np.max(np.abs(r['z'])):.1f}, "
               f"bias covered {np.mean(r['bias_cover']):.2f} ({r['seconds']:.0f} s)", flush=True)
-        if args.cache:
-            with open(args.cache[0] + ".tmp", "w") as f:
-                json.dump(done, f, default=float)
-            os.replace(args.cache[0] + ".tmp", args.cache[0])
+        write_cache(args.cache[0] if args.cache else None, done)
     if any(f"{share:g}/{i}" not in done for share, i in runs):
         return {}
     table = _summary({share: [done[f"{share:g}/{i}"] for i in range(args.scenes)] for share in args.shares})

@@ -28,14 +28,13 @@ own ``--cache``); ``--cache`` may be given several times, and the table is print
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
 import time
 
 import jax
 import numpy as np
 
+from _runs import confidently_wrong, distance_sd, read_caches, write_cache
 from jaxgaze.bias import gaze_offsets, target_direction_head
 from jaxgaze.bias.looking import gaze_angles_to_direction, head_to_world
 from jaxgaze.concurrence import find_concurrences_over_frames
@@ -166,8 +165,7 @@ def evaluate_scene(scene, key, warmup, draws):
     bias_iv = post.interval("bias")
     h_iv = post.interval("cone_width")
     bias_error = _angle_error_deg(post.bias, scene.bias)
-    distance = [float(np.sqrt(d @ np.linalg.solve(np.cov(x.T) + 1e-12 * np.eye(2), d)))
-                for d, x in zip(scene.bias - post.samples["bias"].mean(0), np.moveaxis(post.samples["bias"], 1, 0))]
+    distance = distance_sd(post.samples["bias"], scene.bias)
     rows["joint"] = {"bias_error": bias_error.tolist(),
                      "count_right": float(np.mean(post.concurrence_counts() == true_count)),
                      "loc_errors": errors, "loc_cover": [bool(c) for c in covered],
@@ -176,8 +174,7 @@ def evaluate_scene(scene, key, warmup, draws):
                      "bias_cover": ((scene.bias >= bias_iv[..., 0]) & (scene.bias <= bias_iv[..., 1])).ravel().tolist(),
                      "h_cover": ((scene.cone_width >= h_iv[..., 0]) & (scene.cone_width <= h_iv[..., 1])).tolist(),
                      "seconds": seconds, "result": str(succeeded(post)), "result_name": name(post.result),
-                     "confidently_wrong": int(sum(name(post.result) == "successful" and e > 3.0 and m > 5.0
-                                                  for e, m in zip(bias_error, distance))),
+                     "confidently_wrong": int(sum(confidently_wrong(name(post.result), bias_error, distance))),
                      "diagnostics": post.sampler.diagnostics._asdict(),
                      "flagged": post.predictive_check["flagged"].tolist(), "alternatives": len(post.alternatives),
                      "num_concurrences": K}
@@ -253,11 +250,7 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
     scenes = simulate_conversations(jax.random.key(args.seed), args.scenes)
     keys = jax.random.split(jax.random.key(args.seed + 1), args.scenes)
-    done = {}
-    for path in args.cache:
-        if os.path.exists(path):
-            with open(path) as f:
-                done.update({int(k): v for k, v in json.load(f).items()})
+    done = {int(k): v for k, v in read_caches(args.cache).items()}
     part, parts = (int(x) for x in args.part.split("/"))
     for i, scene in enumerate(scenes):
         if i in done or i % parts != part:
@@ -268,10 +261,7 @@ def main(argv=None) -> dict:
         print(f"scene {i}: {scene.num_people} people, {scene.num_objects} objects, {time.time() - t0:.0f} s; "
               f"joint acc {done[i]['joint']['accuracy']:.3f} vs Spk {done[i]['pipeline, Spk-LMedS']['accuracy']:.3f}",
               flush=True)
-        if args.cache:
-            with open(args.cache[0] + ".tmp", "w") as f:
-                json.dump({str(k): v for k, v in done.items()}, f, default=float)
-            os.replace(args.cache[0] + ".tmp", args.cache[0])
+        write_cache(args.cache[0] if args.cache else None, done)
     if len(done) < args.scenes:
         return {}
     table = _summary([done[i] for i in range(args.scenes)])

@@ -26,12 +26,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 
 import jax
 import numpy as np
 
+from _runs import confidently_wrong, distance_sd, read_caches, write_cache
 from jaxgaze.joint import fit_joint, infer, joint_data, joint_start, rivals
 from jaxgaze.results import name
 from jaxgaze.simulate import simulate_conversation
@@ -44,27 +44,17 @@ def _errors_deg(estimate, truth):
     return np.degrees(np.linalg.norm(d, axis=-1))
 
 
-def _mahalanobis(draws, truth):
-    """``(P,)`` distance of the truth from the posterior of each bias, in posterior sd."""
-    out = []
-    for i in range(truth.shape[0]):
-        x = draws[:, i]
-        d = truth[i] - x.mean(0)
-        out.append(float(np.sqrt(d @ np.linalg.solve(np.cov(x.T) + 1e-12 * np.eye(2), d))))
-    return np.asarray(out)
-
-
 def _fit(data, scene, start, key, warmup, draws, method="nuts"):
     t0 = time.time()
     post = fit_joint(data, key=key, method=method, num_warmup=warmup, num_samples=draws, num_steps=300, start=start)
     seconds = time.time() - t0
     error = _errors_deg(post.bias, scene.bias)
-    distance = _mahalanobis(post.samples["bias"], scene.bias)
+    distance = distance_sd(post.samples["bias"], scene.bias)
     start_error = _errors_deg(start.bias, scene.bias)
     result = name(post.result)
     return {"result": result, "seconds": seconds, "error": error.tolist(), "start_error": start_error.tolist(),
             "distance_sd": distance.tolist(),
-            "confidently_wrong": [bool(result == "successful" and e > 3.0 and m > 5.0) for e, m in zip(error, distance)],
+            "confidently_wrong": confidently_wrong(result, error, distance),
             "moved": list(post.modes.moved) if post.modes else [],
             "rivals_tried": post.modes.rivals_tried if post.modes else 0,
             "alternatives": [{"person": a.person, "weight": a.weight, "gap": a.log_evidence_gap}
@@ -124,10 +114,7 @@ def main(argv=None) -> dict:
         infer._prune_concurrences = lambda values, arrays, prior, progress: (
             values, arrays, list(range(arrays.location_centres.shape[1])), None)
     keys = jax.random.split(jax.random.key(args.seed), args.scenes)
-    done = {}
-    if args.cache and os.path.exists(args.cache):
-        with open(args.cache) as f:
-            done = {int(k): v for k, v in json.load(f).items()}
+    done = {int(k): v for k, v in read_caches([args.cache]).items()}
     part, parts = (int(x) for x in args.part.split("/"))
     for i in range(args.scenes):
         if i in done or i % parts != part:
@@ -140,10 +127,7 @@ def main(argv=None) -> dict:
               f"pipeline {r['pipeline']['result']} max error {max(r['pipeline']['error']):.1f}°, "
               f"rival {r['rival']['result']} error {r['rival']['error'][r['rival_person']]:.1f}° "
               f"({time.time() - t0:.0f} s)", flush=True)
-        if args.cache:
-            with open(args.cache + ".tmp", "w") as f:
-                json.dump({str(k): v for k, v in done.items()}, f, default=float)
-            os.replace(args.cache + ".tmp", args.cache)
+        write_cache(args.cache, done)
     if len(done) < args.scenes:
         return {}
     table = _summary([done[i] for i in range(args.scenes)])
