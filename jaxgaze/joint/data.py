@@ -43,6 +43,13 @@ class JointData(NamedTuple):
         calibration_points: ``(P, M, 3)`` each wearer's calibration points of regard in
             their camera frame (Park et al. 2012, Sec. 3.2); padding elsewhere.
         calibration_mask: ``(P, M)`` the real points (none for a person without a camera).
+        head_motion: head pose only (no eye tracker): ``(T, P, 5)`` the head's yaw and tilt
+            (world, radians) from ``head_reference``, their rates (radians per second,
+            backward differences) and the frame rate where the previous frame is present
+            (0 where it is not: no rate); ``gaze_angles`` are then 0. ``None`` when the
+            gaze is measured.
+        head_reference: ``(P, 2)`` each person's mean head direction ``(yaw, tilt)``, world
+            frame (head pose only).
 
     For a **wearer** (a person with calibration points) ``eye_positions`` holds the
     head-mounted camera's centre and ``R_world_from_head`` its rotation
@@ -63,6 +70,8 @@ class JointData(NamedTuple):
     window_s: float
     calibration_points: Float[np.ndarray, "P M 3"]
     calibration_mask: Bool[np.ndarray, "P M"]
+    head_motion: Float[np.ndarray, "T P 4"] | None = None
+    head_reference: Float[np.ndarray, "P 2"] | None = None
 
     @property
     def wearers(self) -> tuple[int, ...]:
@@ -80,6 +89,11 @@ class JointData(NamedTuple):
     @property
     def num_windows(self) -> int:
         return int(self.window.max()) + 1 if self.window.size else 0
+
+    @property
+    def head_only(self) -> bool:
+        """Whether the gaze is inferred from head pose alone (no gaze measurement)."""
+        return self.head_motion is not None
 
     @property
     def has_speech(self) -> bool:
@@ -155,12 +169,16 @@ def joint_data(
     Args:
         eye_positions: ``(T, P, 3)`` eye midpoints, world frame, metres.
         R_world_from_head: ``(T, P, 3, 3)`` head rotations (``v_world = R v_head``).
-        gaze_angles: ``(T, P, 2)`` measured gaze ``(yaw, tilt)``, head frame, radians.
-        present: ``(T, P)`` bool; default: where the gaze angles are not NaN.
+        gaze_angles: ``(T, P, 2)`` measured gaze ``(yaw, tilt)``, head frame, radians; ``None``
+            for head pose only (a head tracker, OpenFace's ``pose_R*``, mocap): the model
+            then infers each person's head–gaze coupling (see :mod:`jaxgaze.joint.model`).
+        present: ``(T, P)`` bool; default: where the gaze angles (head pose only: the
+            eye positions and rotations) are not NaN.
         speaking: ``(T, P)`` 0/1 flags, or a mapping from person name to ``(T,)`` flags
             (people left out never speak); ``None`` when speech is unknown.
         measurement_scale: ``(T, P)`` per-frame measurement sd (radians, ≥ 0), e.g. a
-            tool's own uncertainty; ``None`` when not known.
+            tool's own uncertainty (head pose only: of the head direction); ``None`` when
+            not known.
         people: ``P`` names (default ``"0"``, ``"1"``, …).
         fps: frames per second; window_s: concurrence window length (seconds).
         calibration_points: for wearers of head-mounted cameras, a mapping from name to
@@ -177,6 +195,19 @@ def joint_data(
     library's unit rule) when an eye lies more than :data:`MAX_SCENE_EXTENT_M` from the
     scene centre (millimetres?), naming the person and frame.
     """
+    head_only = gaze_angles is None
+    if head_only:
+        if R_world_from_head is None:
+            raise ValueError("head pose only (gaze_angles=None) needs R_world_from_head: the head rotations are "
+                             "then all there is to infer the gaze from")
+        shape = np.shape(eye_positions)
+        if len(shape) != 3 or shape[-1] != 3:
+            raise ValueError(f"eye_positions must have shape (T, P, 3), got {shape}")
+        gaze_angles = np.zeros(shape[:2] + (2,))
+        if present is None:
+            with np.errstate(invalid="ignore"):
+                present = (np.isfinite(np.asarray(eye_positions, float)).all(-1)
+                           & np.isfinite(np.asarray(R_world_from_head, float)).all((-2, -1)))
     gaze = np.asarray(gaze_angles, dtype=float)
     if gaze.ndim != 3 or gaze.shape[-1] != 2:
         raise ValueError(f"gaze_angles must have shape (T, P, 2) (yaw, tilt per frame and person), got {gaze.shape}")
@@ -245,8 +276,36 @@ def joint_data(
     R = np.where(mask[..., None, None], R, np.eye(3))
     window = (np.arange(T) / fps // window_s).astype(np.int64)
     points, point_mask = _calibration(calibration_points, people)
+    motion = reference = None
+    if head_only:
+        if point_mask.any():
+            raise ValueError("head pose only (gaze_angles=None) is for people without head-mounted cameras; "
+                             "wearers with calibration points need their gaze angles (0 for the primary ray)")
+        motion, reference = _head_motion(R, mask, float(fps))
     return JointData(eyes, R, gaze, mask, np.where(mask, speak, 0.0), scale, window, people, float(fps),
-                     float(window_s), points, point_mask)
+                     float(window_s), points, point_mask, motion, reference)
+
+
+def _wrap(angle):
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def _head_motion(R: np.ndarray, present: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(T, P, 5)`` head yaw and tilt (world) from each person's mean direction ``(P, 2)``, their rates (rad/s,
+    backward differences) and ``fps`` where the previous frame is present (0 elsewhere: no rate there)."""
+    forward = R[..., :, 0]  # the head's +x in the world
+    yaw = np.arctan2(forward[..., 1], forward[..., 0])
+    tilt = np.arcsin(np.clip(forward[..., 2], -1.0, 1.0))
+    reference = np.stack([np.angle(np.sum(np.where(present, np.exp(1j * yaw), 0.0), axis=0)),
+                          np.sum(np.where(present, tilt, 0.0), axis=0) / present.sum(axis=0)], axis=-1)
+    angles = np.stack([_wrap(yaw - reference[:, 0]), tilt - reference[:, 1]], axis=-1)
+    angles = np.where(present[..., None], angles, 0.0)
+    after = np.zeros(present.shape)  # fps where frame t − 1 is present too
+    after[1:] = np.where(present[1:] & present[:-1], fps, 0.0)
+    rate = np.zeros_like(angles)
+    rate[1:] = np.concatenate([_wrap(angles[1:, :, :1] - angles[:-1, :, :1]), angles[1:, :, 1:] - angles[:-1, :, 1:]],
+                              -1) * after[1:, :, None]
+    return np.concatenate([angles, rate, after[..., None]], axis=-1), reference
 
 
 def _calibration(calibration_points, people: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:

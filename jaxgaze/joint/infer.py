@@ -33,10 +33,11 @@ from jaxgaze.bias.looking import gaze_angles_to_direction, head_to_world
 from jaxgaze.cone import sample_gaze_directions
 from jaxgaze.geometry import angle_between, unit
 from jaxgaze.joint.data import JointData
-from jaxgaze.joint.init import JointStart, directions_to_people, joint_start
+from jaxgaze.joint.init import JointStart, joint_start, model_arrays
 from jaxgaze.joint import rivals
 from jaxgaze.joint.model import (BLOCK_FRAMES, JointPrior, ModelArrays, concurrence_locations, eye_positions,
-                                 joint_model, model_params, target_log_prior, target_marginals)
+                                 gaze_angles, joint_model, measurement_width, model_params, target_log_prior,
+                                 target_marginals)
 from jaxgaze.nuts import (MAX_DIVERGENT_SHARE, MAX_RHAT, MIN_ESS, SamplerReport, laplace_inverse_mass,
                           posterior_summary, sample_nuts, sampler_report)
 from jaxgaze._progress import progress_bar
@@ -49,7 +50,7 @@ __all__ = ["JointPosterior", "SVIDiagnostics", "fit_joint", "mean_field_guide", 
 #: Inference methods of :func:`fit_joint`.
 METHODS = ("nuts", "svi")
 _SUMMARY_SITES = ("bias", "cone_width", "alpha_person", "alpha_object", "speaker_effect", "stay",
-                  "concurrence_locations", "eye_offset")
+                  "concurrence_locations", "eye_offset", "coupling", "head_lag")
 #: Draws used for the membership probabilities and the predictive check.
 _MAX_PROBABILITY_DRAWS = 200
 #: Two free concurrences closer than this (metres) in every window after the start's refinement are one
@@ -68,13 +69,7 @@ def _model(prior: JointPrior, blocks_per_step: int | None):
     return functools.partial(joint_model, prior=prior, blocks_per_step=blocks_per_step)
 
 
-def _arrays(data: JointData, centres, dtype) -> ModelArrays:
-    f = lambda a: jnp.asarray(a, dtype)  # noqa: E731
-    return ModelArrays(f(data.eye_positions), f(data.R_world_from_head), f(data.gaze_angles),
-                       jnp.asarray(data.present), f(data.speaking), f(data.measurement_scale),
-                       jnp.asarray(data.window, jnp.int32), f(directions_to_people(data)), f(centres),
-                       f(data.calibration_points), jnp.asarray(data.calibration_mask),
-                       jnp.asarray(data.wearers, jnp.int32).reshape(-1))
+_arrays = model_arrays
 
 
 def _start_values(start: JointStart, prior: JointPrior, num_people: int) -> dict:
@@ -89,6 +84,9 @@ def _start_values(start: JointStart, prior: JointPrior, num_people: int) -> dict
         values["concurrence_offset"] = np.zeros((K, 3))
         if W > 1:
             values["concurrence_drift"] = np.zeros((W, K, 3))
+    if start.coupling is not None:
+        values["coupling"] = np.asarray(start.coupling, float)
+        values["head_lag"] = np.asarray(start.head_lag, float)
     if start.eye_offset.shape[0]:
         values["eye_offset"] = np.asarray(start.eye_offset, float)
         values["calibration_outlier_share"] = np.full(start.eye_offset.shape[0], 0.1)
@@ -98,7 +96,9 @@ def _start_values(start: JointStart, prior: JointPrior, num_people: int) -> dict
 def _unconstrained(values: dict) -> dict:
     """numpyro's unconstrained values: log for the positive widths, logit for the probabilities."""
     out = dict(values)
-    out["cone_width"] = np.log(values["cone_width"])
+    for site in _POSITIVE_SITES:
+        if site in values:
+            out[site] = np.log(values[site])
     for site in _UNIT_SITES:
         if site in values:
             out[site] = np.log(values[site]) - np.log1p(-values[site])
@@ -376,8 +376,9 @@ def _posterior_summaries(key, draws: dict, arrays: ModelArrays, prior: JointPrio
                                                     (T, P) + params["locations"].shape[1:])], axis=2)
         chosen = jnp.take_along_axis(targets, jnp.minimum(z, targets.shape[2] - 1)[..., None, None], axis=2)[:, :, 0]
         u = unit(chosen - eyes)
-        d = head_to_world(gaze_angles_to_direction(arrays.gaze_angles + params["bias"]), arrays.R_world_from_head)
-        width = jnp.sqrt(jnp.square(params["cone_width"])[None] + jnp.square(arrays.measurement_scale))
+        d = head_to_world(gaze_angles_to_direction(gaze_angles(params, arrays) + params["bias"]),
+                          arrays.R_world_from_head)
+        width = measurement_width(params, arrays)
         replicated = sample_gaze_directions(k2, GazeRays(eyes.reshape(-1, 3), u.reshape(-1, 3), width.reshape(-1)))
         use = arrays.present & (z < targets.shape[2])
         count = jnp.maximum(jnp.sum(use, axis=0), 1)
@@ -566,10 +567,15 @@ def _inference_data(samples: dict, stats: dict | None, data: JointData, K: int):
             "concurrence_drift": ["window", "concurrence", "axis"],
             "concurrence_locations": ["window", "concurrence", "axis"],
             "eye_offset": ["wearer", "axis"], "calibration_outlier_share": ["wearer"],
+            "coupling": ["person", "angle"], "head_lag": ["person"], "head_motion": ["frame", "person", "motion"],
             "gaze_angles": ["frame", "person", "angle"], "present": ["frame", "person"],
             "speaking": ["frame", "person"]}
     observed = {"gaze_angles": data.gaze_angles, "present": data.present.astype(np.int8),
                 "speaking": data.speaking}
+    if data.head_motion is not None:  # head pose only: what the gaze was inferred from, not a measured gaze
+        observed = {**observed, "head_motion": data.head_motion}
+        del observed["gaze_angles"]
+        coords["motion"] = ["yaw", "tilt", "yaw_rate", "tilt_rate", "rate_fps"]
     return az.from_dict(posterior=samples, sample_stats=stats, observed_data=observed, coords=coords, dims=dims)
 
 
@@ -722,8 +728,8 @@ def _mixture(runs: list, weights: np.ndarray, num_samples: int):
 
 
 #: Sites on the positive half-line and in (0, 1): their guide is a normal in log and logit space.
-_POSITIVE_SITES = ("cone_width",)
-_UNIT_SITES = ("stay", "calibration_outlier_share")
+_POSITIVE_SITES = ("cone_width", "head_lag")
+_UNIT_SITES = ("stay", "calibration_outlier_share", "coupling")
 
 
 def mean_field_guide(*model_args, start: dict, **model_kwargs):
@@ -758,7 +764,7 @@ def _svi_arrays(arrays: ModelArrays) -> ModelArrays:
     with unobserved frames: the chain moves on without an observation and adds
     ``log Σ_j p(z_t = j | g_<t) = log 1 = 0``, so the likelihood, the block count and
     the subsampling are unchanged (up to float rounding). With ``D > 1`` local devices
-    the eight frame-axis leaves are split over a ``Mesh`` of ``gcd(D, B·L)`` of them
+    the nine frame-axis leaves are split over a ``Mesh`` of ``gcd(D, B·L)`` of them
     (``NamedSharding(mesh, PartitionSpec("frames"))``; ``gcd(D, B·L) = D`` for ``D``
     a divisor of 64), the others replicated. A step then gathers its blocks from the
     devices that hold them (one all-reduce) and evaluates their ELBO on every device.
@@ -767,15 +773,15 @@ def _svi_arrays(arrays: ModelArrays) -> ModelArrays:
     """
     T = arrays.present.shape[0]
     frames = -(-T // BLOCK_FRAMES) * BLOCK_FRAMES
-    padded = ModelArrays(*(jnp.concatenate([a, jnp.repeat(a[-1:], frames - T, axis=0)]) for a in arrays[:8]),
-                         *arrays[8:])
+    padded = ModelArrays(*(jnp.concatenate([a, jnp.repeat(a[-1:], frames - T, axis=0)]) for a in arrays[:9]),
+                         *arrays[9:])
     padded = padded._replace(present=padded.present.at[T:].set(False))
     devices = jax.local_devices()[: math.gcd(jax.local_device_count(), frames)]
     if len(devices) == 1:
         return padded
     sharding = frame_sharding(devices)
-    return ModelArrays(*jax.device_put(list(padded[:8]), sharding),
-                       *jax.device_put(list(padded[8:]), NamedSharding(sharding.mesh, PartitionSpec())))
+    return ModelArrays(*jax.device_put(list(padded[:9]), sharding),
+                       *jax.device_put(list(padded[9:]), NamedSharding(sharding.mesh, PartitionSpec())))
 
 
 def _svi_run(svi: SVI, key, arrays: ModelArrays, num_steps: int, progress: bool):

@@ -15,9 +15,13 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
+from jax.flatten_util import ravel_pytree
 from jaxtyping import Float, Int
 
 from jaxgaze.bias.estimators import lmeds_bias
@@ -26,11 +30,17 @@ from jaxgaze.bias.looking import (candidate_frames, direction_to_gaze_angles, ga
 from jaxgaze.calibration import calibrate_cone
 from jaxgaze.concurrence import ConcurrenceOptions, find_concurrences_over_frames
 from jaxgaze.joint.data import JointData
+from jaxgaze.joint.model import JointPrior, ModelArrays, head_gaze_angles, marginal_log_likelihood
 from jaxgaze.rays import GazeRays
 from jaxgaze.results import name
 
-__all__ = ["JointStart", "directions_to_people", "wearer_eyes", "calibrate_wearers", "speaker_rule_bias", "corrected_rays", "initial_concurrences", "joint_start",
+__all__ = ["JointStart", "directions_to_people", "wearer_eyes", "calibrate_wearers", "speaker_rule_bias", "coupling_profile", "model_arrays", "corrected_rays", "initial_concurrences", "joint_start",
            "DEFAULT_CONCURRENCE_OPTIONS"]
+
+#: The head's lag (s) the start assumes with head pose only (lags of a few tenths of a second are common).
+START_HEAD_LAG = 0.2
+#: The couplings :func:`coupling_profile` scores each person's head pose on.
+COUPLING_GRID = np.array([0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95])
 
 #: The mean-shift options of the start: modes above the floor and below 3 m, and a
 #: bandwidth-scaled search (Park et al. 2012, Sec. 3.3).
@@ -48,6 +58,8 @@ class JointStart(NamedTuple):
         eye_offset: ``(Nw, 3)`` each wearer's eye centre in the camera frame, from Park's
             calibration (:func:`~jaxgaze.calibration.calibrate_cone`); their bias is
             the angles of its primary direction.
+        coupling: ``(P, 2)`` the head's share ``κ`` of the line of sight the start assumes
+            (head pose only; ``None`` otherwise), with ``head_lag`` ``(P,)`` its lag ``τ`` (s).
     """
 
     bias: Float[np.ndarray, "P 2"]
@@ -55,6 +67,8 @@ class JointStart(NamedTuple):
     concurrence_centres: Float[np.ndarray, "W K 3"]
     concurrence_support: Int[np.ndarray, " K"]
     eye_offset: Float[np.ndarray, "Nw 3"] = np.zeros((0, 3))
+    coupling: Float[np.ndarray, "P 2"] | None = None
+    head_lag: Float[np.ndarray, " P"] | None = None
 
     @property
     def num_concurrences(self) -> int:
@@ -113,6 +127,66 @@ def speaker_rule_bias(
         bias[i] = np.asarray(lmeds_bias(o)[0])
         used[i] = pick.size
     return bias, used
+
+
+def model_arrays(data: JointData, centres, dtype) -> ModelArrays:
+    """The joint model's arrays (:class:`~jaxgaze.joint.model.ModelArrays`) of a recording and initial concurrences."""
+    T, P = data.present.shape
+    f = lambda a: jnp.asarray(a, dtype)  # noqa: E731
+    return ModelArrays(f(data.eye_positions), f(data.R_world_from_head), f(data.gaze_angles),
+                       jnp.asarray(data.present), f(data.speaking), f(data.measurement_scale),
+                       jnp.asarray(data.window, jnp.int32), f(directions_to_people(data)),
+                       f(np.zeros((T, P, 0)) if data.head_motion is None else data.head_motion), f(centres),
+                       f(data.calibration_points), jnp.asarray(data.calibration_mask),
+                       jnp.asarray(data.wearers, jnp.int32).reshape(-1))
+
+
+def coupling_profile(data: JointData, key, *, head_lag: float = START_HEAD_LAG,
+                     prior: JointPrior = JointPrior()) -> tuple[np.ndarray, np.ndarray]:
+    """Each person's log likelihood of their head pose on a grid of couplings ``κ`` (head pose only; Stiefelhagen & Zhu 2002; Siegfried et al. 2017, eq. 2).
+
+    For every ``κ`` of :data:`COUPLING_GRID` (both axes), the gaze read from the head
+    (:func:`~jaxgaze.joint.model.head_gaze_angles`), each person's Spk-LMedS bias of that
+    gaze refined with their cone width (BFGS), and the model's likelihood (:func:`~jaxgaze.joint.model.marginal_log_likelihood`,
+    with the Jacobian) with the prior's cone width, speaker effect and no concurrences.
+    People are independent given these, so one grid serves everyone. A wrong ``κ`` maps
+    a person's looks at one neighbour onto another; the refinement from a single ``κ``
+    can stay in that mode. Returns ``(log likelihood (G, P), bias (G, P, 2))``.
+    """
+    if data.head_motion is None:
+        raise ValueError("coupling_profile needs head pose only data (joint_data(..., gaze_angles=None))")
+    P, W = data.num_people, data.num_windows
+    arrays = model_arrays(data, np.zeros((W, 0, 3)), jnp.float32)
+    scores, biases = [], []
+    for kappa in COUPLING_GRID:
+        coupling, lag = np.full((P, 2), kappa), np.full(P, head_lag)
+        gaze = np.asarray(head_gaze_angles(jnp.asarray(data.head_motion), jnp.asarray(coupling), jnp.asarray(lag)))
+        bias, _ = speaker_rule_bias(data._replace(gaze_angles=np.where(data.present[..., None], gaze, 0.0)), key)
+        params = {"alpha_person": 0.0, "alpha_object": 0.0, "speaker_effect": prior.speaker_log_ratio, "stay": 0.9,
+                  "locations": np.zeros((W, 0, 3)), "coupling": coupling, "head_lag": lag}
+        params = {k: jnp.asarray(v, jnp.float32) for k, v in params.items()}
+        free = {"bias": jnp.asarray(bias, jnp.float32), "log_width": jnp.full(P, math.log(prior.cone_width_median),
+                                                                              jnp.float32)}
+        score, free = _profile_point(free, params, arrays)
+        scores.append(np.asarray(score))
+        biases.append(np.asarray(free["bias"]))
+    return np.asarray(scores), np.asarray(biases)
+
+
+@jax.jit
+def _profile_point(free: dict, params: dict, arrays: ModelArrays):
+    """Every person's bias and cone width refined (BFGS, 50 steps) at fixed ``κ``; their log likelihoods ``(P,)``."""
+    def per_person(z):
+        return jnp.sum(marginal_log_likelihood({**params, "bias": z["bias"], "cone_width": jnp.exp(z["log_width"])},
+                                               arrays), axis=0)
+
+    flat, unravel = ravel_pytree(free)
+    solution = optx.minimise(lambda x, _: -jnp.sum(per_person(unravel(x))), optx.BFGS(rtol=1e-4, atol=1e-4), flat,
+                             max_steps=50, throw=False)
+    better = jnp.all(jnp.isfinite(solution.value)) & (jnp.sum(per_person(unravel(solution.value)))
+                                                      >= jnp.sum(per_person(free)))
+    z = unravel(jnp.where(better, solution.value, flat))
+    return per_person(z), z
 
 
 def wearer_eyes(data: JointData, eye_offset) -> np.ndarray:
@@ -237,12 +311,22 @@ def joint_start(
     then the concurrences of the corrected rays.
 
     ``stride`` thins the frames searched for concurrences (default: about 300 frames).
+    With head pose only, the gaze is read from the head with each person's
+    best ``κ`` of :func:`coupling_profile` and ``τ =`` :data:`START_HEAD_LAG`
+    (:func:`~jaxgaze.joint.model.head_gaze_angles`).
     """
+    coupling = head_lag = None
+    if data.head_motion is not None:
+        head_lag = np.full(data.num_people, START_HEAD_LAG)
+        scores, _ = coupling_profile(data, key)
+        coupling = np.repeat(COUPLING_GRID[np.argmax(scores, axis=0)][:, None], 2, axis=1)
+        gaze = np.asarray(head_gaze_angles(jnp.asarray(data.head_motion), jnp.asarray(coupling), jnp.asarray(head_lag)))
+        data = data._replace(gaze_angles=np.where(data.present[..., None], gaze, 0.0))
     bias, used = speaker_rule_bias(data, key)
     eye_offset, wearer_bias = calibrate_wearers(data, key)
     bias[list(data.wearers)] = wearer_bias
     rays = corrected_rays(data, bias, cone_width, eye_offset)
     stride = max(1, data.num_frames // 300) if stride is None else int(stride)
     centres, support = initial_concurrences(data, rays, options=options, stride=stride, progress=progress)
-    return JointStart(bias, used, centres, support, eye_offset)
+    return JointStart(bias, used, centres, support, eye_offset, coupling, head_lag)
 

@@ -32,6 +32,21 @@ frame and person for this transition. The chain restarts from ``π`` every
 are what SVI subsamples. A frame where the gazer is absent moves the chain on
 without an observation.
 
+**Head pose only** (no eye tracker; ``head_motion`` of :class:`ModelArrays` given): the
+head turns a share ``κ`` of the line of sight away from a rest direction and lags it
+(Stiefelhagen & Zhu 2002; Ba & Odobez 2009; the linear form of Yücel et al. 2013's
+head-to-gaze regression): ``κ (gaze_t − rest) = x_t − rest`` per axis with
+``x_t = h_t + τ ḣ_t`` the head ``h`` undone of a first-order lag (``ḣ`` the backward
+difference per second, ``τ`` the lag). Relative to the head the gaze is then
+``g = λ (h − ref) + (1 + λ) τ ḣ + λ (ref − rest)`` with ``λ = 1/κ − 1`` and ``ref``
+each person's mean head direction: the constant last term is the bias ``b``, so the
+rest of the model reads ``g`` as it reads a measured gaze. The data are the head's
+angles, so each observed frame adds the log Jacobian of the map from head to gaze,
+``Σ_axes log((1 + τ·fps) / κ)`` (``log(1/κ)`` after a gap: no rate there); without
+it a head that turns fully (``κ → 1``) looks best, as it packs the gazes tightest.
+``κ`` (per person and axis) and ``τ`` (per person) are inferred with the rest; a head
+tracker's per-frame sd ``σ`` enters the width as ``σ / κ``.
+
 Candidate order, everywhere: people ``0 … P−1``, concurrences ``P … P+K−1``,
 elsewhere ``P+K``.
 """
@@ -48,12 +63,12 @@ import numpyro.distributions as dist
 from jax.scipy.special import logsumexp
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxgaze.bias.looking import gaze_angles_to_direction, head_to_world
+from jaxgaze.bias.looking import direction_to_gaze_angles, gaze_angles_to_direction, head_to_world
 from jaxgaze.calibration.posterior import calibration_log_likelihood
 from jaxgaze.cone import cone_direction_log_density
 from jaxgaze.geometry import unit
 
-__all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "candidate_log_probabilities",
+__all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "head_gaze_angles", "head_log_jacobian", "gaze_angles", "candidate_log_probabilities",
            "marginal_log_likelihood", "target_marginals", "target_log_prior", "model_params", "concurrence_locations", "eye_positions"]
 
 #: Frames per block of the target chain (it restarts from the prior at each block).
@@ -85,6 +100,10 @@ class JointPrior(NamedTuple):
             forward direction, a Fisher cone with ``κ = 1/σ_e²``.
         stay_concentration: ``(a, b)`` of the Beta prior of ``ρ``, the probability that a
             person keeps the previous frame's target.
+        coupling_concentration: ``(a, b)`` of the Beta prior of ``κ``, the share of the line
+            of sight the head turns (head pose only; most people turn 0.3–1).
+        head_lag_scale: scale (seconds) of the half-normal prior of ``τ``, the head's lag
+            behind the eyes (head pose only).
     """
 
     bias_scale: float = 0.25
@@ -98,6 +117,8 @@ class JointPrior(NamedTuple):
     eye_offset_scale: float = 0.1
     elsewhere_spread: float = 0.6
     stay_concentration: tuple[float, float] = (2.0, 1.0)
+    coupling_concentration: tuple[float, float] = (3.0, 2.0)
+    head_lag_scale: float = 0.4
 
 
 class ModelArrays(NamedTuple):
@@ -107,6 +128,10 @@ class ModelArrays(NamedTuple):
     person ``j``'s, in ``i``'s head frame (data: the people's positions are known;
     with wearers of head-mounted cameras it is recomputed from the inferred eyes).
     ``wearer_index`` lists the wearers; for them ``eye_positions`` are camera centres.
+    ``head_motion`` is ``(T, P, 5)`` for head pose only (the head's yaw and tilt from
+    its mean direction, their rates per second and the frame rate where the previous
+    frame is present, else 0; ``gaze_angles`` unused; :class:`~jaxgaze.joint.JointData`) and
+    ``(T, P, 0)`` when the gaze is measured. The first nine fields are per frame.
     """
 
     eye_positions: Float[Array, "T P 3"]
@@ -117,6 +142,7 @@ class ModelArrays(NamedTuple):
     measurement_scale: Float[Array, "T P"]
     window: Int[Array, " T"]
     to_people_head: Float[Array, "T P P 3"]
+    head_motion: Float[Array, "T P _"]
     location_centres: Float[Array, "W K 3"]
     calibration_points: Float[Array, "P M 3"]
     calibration_mask: Bool[Array, "P M"]
@@ -135,6 +161,7 @@ def model_params(values: dict, centres: Float[Array, "W K 3"], prior: JointPrior
     """The parameters the likelihood reads, from the latent sites' constrained values (one draw, or a mode):
     locations from the concurrence offsets (:func:`concurrence_locations`), ``α_object = 0`` without concurrences."""
     p = {k: values[k] for k in ("bias", "cone_width", "alpha_person", "speaker_effect", "stay")}
+    p.update({k: values[k] for k in ("coupling", "head_lag") if k in values})
     if centres.shape[1]:
         p["alpha_object"] = values["alpha_object"]
         p["locations"] = concurrence_locations(values, centres, prior)
@@ -155,6 +182,39 @@ def eye_positions(params: dict, arrays: ModelArrays) -> Float[Array, "T P 3"]:
     return arrays.eye_positions.at[:, w].add(offset)
 
 
+def head_gaze_angles(head_motion: Float[Array, "T P 5"], coupling: Float[Array, "P 2"], head_lag: Float[Array, " P"]
+                     ) -> Float[Array, "T P 2"]:
+    """The gaze's angles relative to the head, from head pose alone: ``λ (h − ref) + (1 + λ) τ ḣ`` with ``λ = 1/κ − 1`` (Stiefelhagen & Zhu 2002; Ba & Odobez 2009).
+
+    The inverse of ``κ (gaze − rest) = h + τ ḣ − rest`` per axis, without its constant
+    ``λ (ref − rest)``, which the bias carries.
+    """
+    lam = 1.0 / coupling - 1.0  # (P, 2)
+    return lam * head_motion[..., :2] + (1.0 + lam) * head_lag[:, None] * head_motion[..., 2:4]
+
+
+def head_log_jacobian(head_motion: Float[Array, "T P 5"], coupling: Float[Array, "P 2"], head_lag: Float[Array, " P"]
+                      ) -> Float[Array, "T P"]:
+    """``Σ_axes log((1 + τ·fps) / κ)`` per frame: the log Jacobian of the map from the head's angles to the gaze's
+    (``fps`` is 0 after a gap). The density of a head pose is the gaze's density times it."""
+    return 2.0 * jnp.log1p(head_lag * head_motion[..., 4]) - jnp.sum(jnp.log(coupling), axis=-1)
+
+
+def gaze_angles(params: dict, arrays: ModelArrays) -> Float[Array, "T P 2"]:
+    """The head-frame gaze angles the likelihood reads: measured, or from head pose (:func:`head_gaze_angles`)."""
+    if not arrays.head_motion.shape[-1]:
+        return arrays.gaze_angles
+    return head_gaze_angles(arrays.head_motion, params["coupling"], params["head_lag"])
+
+
+def measurement_width(params: dict, arrays: ModelArrays) -> Float[Array, "T P"]:
+    """``w = √(h² + σ²)``; for head pose only the tracker's ``σ`` is carried to the gaze as ``(1 + λ_yaw) σ``."""
+    scale = arrays.measurement_scale
+    if arrays.head_motion.shape[-1]:
+        scale = scale / params["coupling"][:, 0]
+    return jnp.sqrt(jnp.square(params["cone_width"])[None] + jnp.square(scale))
+
+
 def _to_people_head(eyes, R):
     toward = unit(eyes[:, None, :, :] - eyes[:, :, None, :])  # (T, gazer, target, 3), world
     return jnp.einsum("tiab,tija->tijb", R, toward)  # R_head_from_world = Rᵀ
@@ -162,17 +222,21 @@ def _to_people_head(eyes, R):
 
 def _parts(params: dict, arrays: ModelArrays, prior: JointPrior):
     """Per candidate group (people, concurrences): the prior logits, the log likelihoods and the validity masks."""
-    _, R, gaze, present, speaking, scale, window, to_people_head = arrays[:8]
+    _, R, _, present, speaking, _, window, to_people_head = arrays[:8]
+    gaze = gaze_angles(params, arrays)
     eyes = eye_positions(params, arrays)
     if arrays.wearer_index.shape[0]:
         to_people_head = _to_people_head(eyes, R)
     T, P = present.shape
-    directions_head = gaze_angles_to_direction(gaze + params["bias"])  # (T, P, 3)
-    width = jnp.sqrt(jnp.square(params["cone_width"])[None] + jnp.square(scale))[..., None]  # (T, P, 1)
-    people_lik = cone_direction_log_density(jnp.einsum("tik,tijk->tij", directions_head, to_people_head), width)
+    width = measurement_width(params, arrays)[..., None]  # (T, P, 1)
     others = present[:, None, :] & ~jnp.eye(P, dtype=bool)[None]
     people_logit = jnp.where(others, params["alpha_person"] + params["speaker_effect"] * speaking[:, None, :], -jnp.inf)
     locations = params["locations"]
+    if arrays.head_motion.shape[-1]:
+        return (people_logit, others) + _head_only_terms(gaze + params["bias"], to_people_head, eyes, R, locations,
+                                                         window, width, arrays.head_motion, prior)
+    directions_head = gaze_angles_to_direction(gaze + params["bias"])  # (T, P, 3)
+    people_lik = cone_direction_log_density(jnp.einsum("tik,tijk->tij", directions_head, to_people_head), width)
     directions = head_to_world(directions_head, R)  # (T, P, 3), world frame
     if locations.shape[1]:
         to_slots = unit(locations[window][:, None] - eyes[:, :, None])  # (T, P, K, 3)
@@ -181,7 +245,32 @@ def _parts(params: dict, arrays: ModelArrays, prior: JointPrior):
         slot_lik = jnp.zeros((T, P, 0), directions_head.dtype)
     forward = directions_head[..., 0]  # cosine to the head's +x
     elsewhere = cone_direction_log_density(forward, jnp.asarray(prior.elsewhere_spread, forward.dtype))
-    return people_logit, people_lik, others, slot_lik, elsewhere, directions, width[..., 0]
+    return people_logit, others, people_lik, slot_lik, elsewhere, directions, width[..., 0]
+
+
+def _angle_log_density(residual, width):
+    """``log N(r; 0, w² I)`` of a 2-D angle residual (yaw, tilt), not wrapped: a density on the plane of angles."""
+    return -0.5 * jnp.sum(jnp.square(residual), axis=-1) / jnp.square(width) - jnp.log(2.0 * math.pi * jnp.square(width))
+
+
+def _head_only_terms(gaze, to_people_head, eyes, R, locations, window, width, head_motion, prior: JointPrior):
+    """The likelihoods of head pose only, on the plane of gaze angles (head frame) rather than the sphere.
+
+    ``gaze`` ``(T, P, 2)`` is ``g + b``, which grows without bound as ``κ → 0``; a density on the
+    sphere is bounded below once angles wrap, and with the Jacobian of :func:`head_log_jacobian`
+    the likelihood would then grow without bound. Residuals to each target's angles are not wrapped.
+    Returns the people's, the concurrences' and elsewhere's log likelihoods, and the world-frame gaze
+    angles from the head's mean direction ``(T, P, 2)`` that a held glance elsewhere is scored by.
+    """
+    T, P = gaze.shape[:2]
+    people_lik = _angle_log_density(gaze[:, :, None] - direction_to_gaze_angles(to_people_head), width)
+    if locations.shape[1]:
+        to_slots = jnp.einsum("tiba,tikb->tika", R, unit(locations[window][:, None] - eyes[:, :, None]))  # head frame
+        slot_lik = _angle_log_density(gaze[:, :, None] - direction_to_gaze_angles(to_slots), width)
+    else:
+        slot_lik = jnp.zeros((T, P, 0), gaze.dtype)
+    elsewhere = _angle_log_density(gaze, jnp.asarray(prior.elsewhere_spread, gaze.dtype))
+    return people_lik, slot_lik, elsewhere, head_motion[..., :2] + gaze, width[..., 0]
 
 
 def _log_normaliser(people_logit, num_slots: int, alpha_object):
@@ -195,7 +284,7 @@ def _log_normaliser(people_logit, num_slots: int, alpha_object):
 def _candidate_terms(params: dict, arrays: ModelArrays, prior: JointPrior):
     """``log π_ti(j)`` (the prior of a new target) and ``log p(g_ti | z_ti = j)``, each ``(T, P, C)``, with the
     world gaze directions ``(T, P, 3)`` and widths ``(T, P)`` that a held glance elsewhere is scored by."""
-    people_logit, people_lik, others, slot_lik, elsewhere, directions, width = _parts(params, arrays, prior)
+    people_logit, others, people_lik, slot_lik, elsewhere, directions, width = _parts(params, arrays, prior)
     K = slot_lik.shape[-1]
     log_z = _log_normaliser(people_logit, K, params["alpha_object"])[..., None]
     log_prior = jnp.concatenate([people_logit, jnp.broadcast_to(params["alpha_object"], slot_lik.shape),
@@ -237,12 +326,17 @@ def _held_elsewhere(log_lik, directions, width, observed):
     A glance elsewhere is at a point fixed for its fixation, so while it is held,
     ``d_t`` scatters around ``d_{t−1}`` with width ``√(w_t² + w_{t−1}²)``. 0 at a block's
     first frame and where frame ``t`` or ``t − 1`` is not observed (a new glance's
-    density is used there).
+    density is used there). ``directions`` are world unit vectors ``(…, 3)``, or (head
+    pose only) world gaze angles ``(…, 2)`` scored on the plane of angles.
     """
-    cosine = jnp.sum(directions[:, 1:] * directions[:, :-1], axis=-1)
     pair = jnp.sqrt(jnp.square(width[:, 1:]) + jnp.square(width[:, :-1]))
     both = observed[:, 1:] & observed[:, :-1]
-    held = jnp.where(both, cone_direction_log_density(jnp.where(both, cosine, 1.0), pair) - log_lik[:, 1:, :, -1], 0.0)
+    if directions.shape[-1] == 2:
+        density = _angle_log_density(directions[:, 1:] - directions[:, :-1], pair)
+    else:
+        cosine = jnp.sum(directions[:, 1:] * directions[:, :-1], axis=-1)
+        density = cone_direction_log_density(jnp.where(both, cosine, 1.0), pair)
+    held = jnp.where(both, density - jnp.maximum(log_lik[:, 1:, :, -1], _LOG_FLOOR), 0.0)  # as _forward floors it
     return jnp.concatenate([jnp.zeros_like(held[:, :1]), held], axis=1)
 
 
@@ -296,10 +390,16 @@ def marginal_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior
     """``log p(g_i | block)`` with the target chain summed out, per block of :data:`BLOCK_FRAMES` frames and person (Park et al. 2012, eq. 3; Siegfried et al. 2017, Sec. 3.2).
 
     ``params`` as :func:`candidate_log_probabilities`, plus ``stay`` (``ρ``). The
-    sum over blocks is the log likelihood of the recording.
+    sum over blocks is the log likelihood of the recording (head pose only: of the
+    head's angles, with :func:`head_log_jacobian`).
     """
     terms = _candidate_terms(params, arrays, prior)
-    return _blocked_log_likelihood(terms, arrays.present, params["stay"], _blocks(arrays.present.shape[0]))
+    index, valid = _blocks(arrays.present.shape[0])
+    log_lik = _blocked_log_likelihood(terms, arrays.present, params["stay"], (index, valid))
+    if not arrays.head_motion.shape[-1]:
+        return log_lik
+    jacobian = head_log_jacobian(arrays.head_motion, params["coupling"], params["head_lag"])[index]  # (B, L, P)
+    return log_lik + jnp.sum(jnp.where(arrays.present[index] & valid[..., None], jacobian, 0.0), axis=1)
 
 
 def target_marginals(params: dict, arrays: ModelArrays, prior: JointPrior = JointPrior()
@@ -325,6 +425,7 @@ def joint_model(
     measurement_scale,
     window,
     to_people_head,
+    head_motion,
     location_centres,
     calibration_points,
     calibration_mask,
@@ -370,8 +471,14 @@ def joint_model(
         params["alpha_object"] = jnp.zeros((), dtype)
         params["locations"] = location_centres
 
+    if head_motion.shape[-1]:
+        params["coupling"] = numpyro.sample("coupling", dist.Beta(
+            *(jnp.full((P, 2), c, dtype) for c in prior.coupling_concentration)).to_event(2))
+        params["head_lag"] = numpyro.sample("head_lag", dist.HalfNormal(
+            jnp.full((P,), prior.head_lag_scale, dtype)).to_event(1))
     arrays = ModelArrays(eye_positions, R_world_from_head, gaze_angles, present, speaking, measurement_scale, window,
-                         to_people_head, location_centres, calibration_points, calibration_mask, wearer_index)
+                         to_people_head, head_motion, location_centres, calibration_points, calibration_mask,
+                         wearer_index)
     num_wearers = wearer_index.shape[0]
     if num_wearers:
         params["eye_offset"] = numpyro.sample(
@@ -385,7 +492,11 @@ def joint_model(
     index, valid = _blocks(T)
     with numpyro.plate("blocks", index.shape[0], subsample_size=blocks_per_step) as blocks:
         index, valid = index[blocks], valid[blocks]
-        local = ModelArrays(*(a[index.reshape(-1)] for a in arrays[:8]), *arrays[8:])  # (B·L, …), blocks in a row
+        local = ModelArrays(*(a[index.reshape(-1)] for a in arrays[:9]), *arrays[9:])  # (B·L, …), blocks in a row
         terms = tuple(a.reshape(index.shape + a.shape[1:]) for a in _candidate_terms(params, local, prior))
         observed = local.present.reshape(index.shape + (P,)) & valid[..., None]
-        numpyro.factor("gaze", jnp.sum(_chain_log_likelihood(terms, observed, stay), axis=-1))
+        log_lik = jnp.sum(_chain_log_likelihood(terms, observed, stay), axis=-1)
+        if head_motion.shape[-1]:
+            jacobian = head_log_jacobian(local.head_motion, params["coupling"], params["head_lag"])
+            log_lik = log_lik + jnp.sum(jnp.where(observed, jacobian.reshape(observed.shape), 0.0), axis=(1, 2))
+        numpyro.factor("gaze", log_lik)

@@ -110,7 +110,7 @@ def test_a_sampler_that_never_moved_is_reported_and_can_raise(scene, fitted, mon
         if "calibration_outlier_share" in values:
             values["calibration_outlier_share"] = 1 / (1 + np.exp(-values["calibration_outlier_share"]))
         if "concurrence_offset" in values:
-            centres = np.asarray(model_args[8])[:, None]
+            centres = np.asarray(infer.ModelArrays(*model_args).location_centres)[:, None]
             values["concurrence_locations"] = centres + 0.5 * values["concurrence_offset"][:, :, None]
         stats = {"diverging": np.ones((1, num_samples), bool), "acceptance_rate": np.zeros((1, num_samples)),
                  "n_steps": np.ones((1, num_samples), int), "lp": np.zeros((1, num_samples))}

@@ -1,0 +1,214 @@
+"""Head pose only (issue 38): the head's angles, the head-to-gaze map and its likelihood against brute force."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxgaze.geometry import head_pose_to_rotation
+from jaxgaze.joint import JointPrior, fit_joint, joint_data
+from jaxgaze.joint.infer import _arrays
+from jaxgaze.joint.init import COUPLING_GRID, coupling_profile
+from jaxgaze.joint.model import head_gaze_angles, marginal_log_likelihood
+from jaxgaze.simulate import simulate_conversation
+
+
+def _tiny(seed=0, T=3, P=3, K=1, gap=None):
+    rng = np.random.default_rng(seed)
+    around = np.linspace(0, 2 * np.pi, P, endpoint=False)
+    eyes = np.stack([np.cos(around), np.sin(around), np.full(P, 1.2)], -1)[None] + 0.02 * rng.normal(size=(T, P, 3))
+    yaw = around[None] + np.pi + 0.4 * rng.normal(size=(T, P))
+    R = np.asarray(head_pose_to_rotation(jnp.asarray(yaw), jnp.asarray(0.15 * rng.normal(size=(T, P))),
+                                         jnp.asarray(0.05 * rng.normal(size=(T, P)))))
+    present = np.ones((T, P), bool)
+    if gap is not None:
+        present[gap] = False
+    data = joint_data(eyes, R, None, present=present, speaking=rng.random((T, P)) < 0.4, fps=5.0,
+                      measurement_scale=0.01 + 0.02 * rng.random((T, P)))
+    centres = rng.normal(size=(1, K, 3)) * 0.3 + np.array([0.0, 0.0, 0.8])
+    params = {"bias": 0.1 * rng.normal(size=(P, 2)), "cone_width": 0.05 + 0.1 * rng.random(P),
+              "alpha_person": 0.4, "alpha_object": -0.3, "speaker_effect": 1.8, "stay": 0.7,
+              "locations": centres + 0.1 * rng.normal(size=centres.shape),
+              "coupling": rng.uniform(0.4, 0.9, (P, 2)), "head_lag": rng.uniform(0.05, 0.4, P)}
+    return data, centres, params
+
+
+def _angles(v):
+    return np.array([math.atan2(v[1], v[0]), math.asin(v[2] / np.linalg.norm(v))])
+
+
+def _log_normal2(r, w):
+    return -0.5 * float(r @ r) / w**2 - math.log(2 * math.pi * w**2)
+
+
+def _brute_force(data, params, i):
+    """``log p(head angles of person i)``: every target sequence enumerated, the Jacobian by automatic differentiation.
+
+    Written from the generative story, not the model's code: ``κ (Γ_t − rest) = h_t + τ ḣ_t − rest`` per axis
+    (``ḣ`` the backward difference per second, none after a gap), ``rest = ref − b / λ``; the gaze relative to
+    the head, ``Γ − h``, scatters around each target's head-frame angles (elsewhere: around 0), a held glance
+    elsewhere around the last frame's ``Γ``.
+    """
+    T, P = data.present.shape
+    K = params["locations"].shape[1]
+    kappa, tau, b = params["coupling"][i], params["head_lag"][i], params["bias"][i]
+    present = data.present[:, i]
+    h0 = data.head_motion[:, i, :2]  # the head's angles from its mean direction (a shift: no Jacobian)
+
+    def gaze_world(h):
+        prev = jnp.concatenate([h[:1], h[:-1]])
+        after = jnp.asarray(np.concatenate([[False], present[1:] & present[:-1]]))[:, None]
+        x = h + jnp.where(after, tau * data.fps * (h - prev), 0.0)
+        rest = -b / (1.0 / kappa - 1.0)  # ref = 0 in these coordinates
+        return rest + (x - rest) / kappa
+
+    jac = np.asarray(jax.jacfwd(lambda h: gaze_world(h.reshape(T, 2)).reshape(-1))(jnp.asarray(h0).reshape(-1)))
+    keep = np.repeat(present, 2)
+    log_det = np.linalg.slogdet(jac[np.ix_(keep, keep)])[1]
+    gamma = np.asarray(gaze_world(jnp.asarray(h0)))
+    terms, rel, width = {}, {}, {}
+    for t in range(T):
+        g = gamma[t] - h0[t]  # the gaze relative to the head, head frame
+        w = math.sqrt(params["cone_width"][i] ** 2 + (data.measurement_scale[t, i] / kappa[0]) ** 2)
+        R = data.R_world_from_head[t, i]
+        logits, liks = {}, {}
+        for j in range(P):
+            if j != i and data.present[t, j]:
+                logits[j] = params["alpha_person"] + params["speaker_effect"] * data.speaking[t, j]
+                liks[j] = _log_normal2(g - _angles(R.T @ (data.eye_positions[t, j] - data.eye_positions[t, i])), w)
+        for k in range(K):
+            logits[P + k] = params["alpha_object"]
+            liks[P + k] = _log_normal2(g - _angles(R.T @ (params["locations"][0, k] - data.eye_positions[t, i])), w)
+        logits["e"] = 0.0
+        liks["e"] = _log_normal2(g, JointPrior().elsewhere_spread)
+        norm = math.log(sum(math.exp(v) for v in logits.values()))
+        terms[t] = {c: (logits[c] - norm, liks[c]) for c in logits}
+        rel[t], width[t] = gamma[t], w
+    rho = params["stay"]
+    names = list(dict.fromkeys(c for t in range(T) for c in terms[t]))
+    weights = []
+    for seq in itertools.product(names, repeat=T):
+        if any(c not in terms[t] for t, c in enumerate(seq)):
+            continue
+        lp = terms[0][seq[0]][0] + (terms[0][seq[0]][1] if present[0] else 0.0)
+        for t in range(1, T):
+            c = seq[t]
+            new = terms[t][c][1] if present[t] else 0.0
+            held = new
+            if c == "e" and present[t] and present[t - 1]:
+                held = _log_normal2(rel[t] - rel[t - 1], math.sqrt(width[t] ** 2 + width[t - 1] ** 2))
+            lp += math.log(rho * (c == seq[t - 1]) * math.exp(held) + (1 - rho) * math.exp(terms[t][c][0] + new))
+        weights.append(lp)
+    return float(np.logaddexp.reduce(weights)) + log_det
+
+
+_marginal_log_likelihood = jax.jit(marginal_log_likelihood)
+
+
+@pytest.mark.parametrize("gap", [None, (1, 0)])
+def test_head_only_likelihood_matches_brute_force(x64, gap):
+    data, centres, params = _tiny(T=3, gap=gap)
+    arrays = _arrays(data, centres, jnp.float64)
+    total = np.asarray(_marginal_log_likelihood(jax.tree_util.tree_map(jnp.asarray, params), arrays)).sum(axis=0)
+    for i in range(data.num_people):
+        assert total[i] == pytest.approx(_brute_force(data, params, i), rel=1e-10)
+
+
+def test_head_only_gradients_match_finite_differences(x64):
+    data, centres, params = _tiny(seed=3, T=8)
+    arrays = _arrays(data, centres, jnp.float64)
+    free = {k: jnp.asarray(params[k]) for k in ("coupling", "head_lag", "bias", "cone_width")}
+
+    def f(z):
+        return jnp.sum(marginal_log_likelihood({**params, **z}, arrays))
+
+    grad = jax.jit(jax.grad(f))(free)
+    f = jax.jit(f)
+    for site, index in (("coupling", (1, 0)), ("coupling", (2, 1)), ("head_lag", (0,)), ("bias", (2, 0))):
+        step = 1e-6
+        up = {**free, site: free[site].at[index].add(step)}
+        down = {**free, site: free[site].at[index].add(-step)}
+        numeric = (float(f(up)) - float(f(down))) / (2 * step)
+        assert float(grad[site][index]) == pytest.approx(numeric, rel=1e-5, abs=1e-6)
+
+
+def test_head_motion_is_the_backward_rate_and_wraps_at_pi():
+    T, P = 5, 2
+    yaw = np.array([[3.10, 0.0], [-3.10, 0.1], [-3.00, 0.2], [3.0, 0.3], [3.05, 0.4]])
+    R = np.asarray(head_pose_to_rotation(jnp.asarray(yaw), jnp.zeros((T, P)), jnp.zeros((T, P))))
+    eyes = np.stack([np.zeros((T, 3)), np.ones((T, 3))], axis=1)
+    present = np.ones((T, P), bool)
+    present[3, 1] = False
+    data = joint_data(eyes, R, None, present=present, fps=10.0)
+    assert data.head_only and data.gaze_angles.shape == (T, P, 2) and not data.gaze_angles.any()
+    rate = data.head_motion[..., 2]
+    # person 0 crosses ±π: 3.10 → −3.10 is +0.083 rad, not −6.2
+    assert rate[1, 0] == pytest.approx((2 * np.pi - 6.20) * 10.0, abs=1e-4)  # float32 rotations
+    assert rate[2, 0] == pytest.approx(1.0, abs=1e-4)
+    # person 1: no rate at the first frame, none on either side of their gap
+    assert rate[0, 1] == 0.0 and rate[3, 1] == 0.0 and rate[4, 1] == 0.0
+    assert rate[2, 1] == pytest.approx(1.0, abs=1e-4)
+    assert data.head_motion[4, 1, 4] == 0.0 and data.head_motion[2, 1, 4] == 10.0
+    # the reference is the circular mean: person 0's head is near ±π, so its angles from it are small
+    assert np.abs(data.head_motion[..., 0][:, 0]).max() < 0.2
+
+
+def test_head_gaze_angles_invert_a_partial_head_turn():
+    """A head that turns κ of the way with no lag gives back the gaze: ``g = λ (h − ref)`` with ``λ = 1/κ − 1``."""
+    kappa = np.array([[0.5, 0.8]])
+    gaze_rel = np.array([[[0.4, -0.1]], [[-0.2, 0.05]]])  # (T, P, 2), from the rest direction (= ref here)
+    head = kappa * gaze_rel
+    motion = np.concatenate([head, np.zeros_like(head), np.zeros(head.shape[:2] + (1,))], -1)
+    g = np.asarray(head_gaze_angles(jnp.asarray(motion), jnp.asarray(kappa), jnp.zeros(1)))
+    np.testing.assert_allclose(head + g, gaze_rel, atol=1e-12)
+
+
+def test_head_only_input_errors():
+    data, _, _ = _tiny()
+    eyes, R = data.eye_positions, data.R_world_from_head
+    with pytest.raises(ValueError, match="needs R_world_from_head"):
+        joint_data(eyes, None, None)
+    bad = R.copy()
+    bad[2, 1] = np.nan
+    with pytest.raises(ValueError, match="R_world_from_head is not finite .* frame 2, person '1'"):
+        joint_data(eyes, bad, None, present=np.ones(eyes.shape[:2], bool))
+    with pytest.raises(ValueError, match="head-mounted cameras"):
+        joint_data(eyes, R, None, calibration_points={"0": np.array([[1.0, 0, 0], [1.0, 0.1, 0], [1.0, 0, 0.1]])})
+
+
+def test_head_only_fit_recovers_the_coupling_and_who_looks_at_whom():
+    """Four people, 40 s. (At 30 s the same scene's person 0 has a rival mode, κ 0.79 for 0.41, reported ``not_mixed``.)"""
+    scene = simulate_conversation(jax.random.key(3), num_people=4, duration_s=40.0)
+    data = joint_data(scene.eye_positions, scene.R_world_from_head, None, present=scene.present,
+                      speaking=scene.speaking, fps=scene.fps)
+    fit = fit_joint(data, key=jax.random.key(0), num_warmup=100, num_samples=100)
+    kappa = np.asarray(fit.samples["coupling"]).mean(axis=0)
+    np.testing.assert_array_less(np.abs(kappa[:, 0] - scene.head_fraction), 0.1)
+    lag = 1.0 / (scene.fps * math.expm1(1.0 / (scene.config.head_lag_s * scene.fps)))  # the lag's discrete form
+    np.testing.assert_array_less(np.abs(np.asarray(fit.samples["head_lag"]).mean(axis=0) - lag), 0.05)
+    target, P = np.asarray(scene.target), data.num_people
+    at_person = data.present & (target >= 0) & (target < P)
+    right = np.mean(fit.map_targets()[at_person] == target[at_person])
+    forward = data.R_world_from_head[..., :, 0]
+    toward = data.eye_positions[:, None] - data.eye_positions[:, :, None]
+    cosine = np.einsum("tik,tijk->tij", forward, toward / np.maximum(np.linalg.norm(toward, axis=-1), 1e-9)[..., None])
+    nearest = np.where(np.eye(P, dtype=bool)[None], -2.0, cosine).argmax(-1)
+    baseline = np.mean(nearest[at_person] == target[at_person])
+    assert right >= 0.9 and right >= baseline + 0.1, (right, baseline)
+
+
+def test_coupling_profile_peaks_near_each_persons_coupling():
+    scene = simulate_conversation(jax.random.key(5), num_people=6, duration_s=60.0)
+    data = joint_data(scene.eye_positions, scene.R_world_from_head, None, present=scene.present,
+                      speaking=scene.speaking, fps=scene.fps)
+    scores, bias = coupling_profile(data, jax.random.key(1))
+    assert scores.shape == (COUPLING_GRID.size, 6) and bias.shape == (COUPLING_GRID.size, 6, 2)
+    np.testing.assert_array_less(np.abs(COUPLING_GRID[scores.argmax(axis=0)] - scene.head_fraction), 0.051)
+    with pytest.raises(ValueError, match="head pose only"):
+        coupling_profile(joint_data(scene.eye_positions, scene.R_world_from_head, scene.gaze_angles,
+                                    present=scene.present, fps=scene.fps), jax.random.key(1))
