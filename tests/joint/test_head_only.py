@@ -181,12 +181,17 @@ def test_head_only_input_errors():
         joint_data(eyes, R, None, calibration_points={"0": np.array([[1.0, 0, 0], [1.0, 0.1, 0], [1.0, 0, 0.1]])})
 
 
-def test_head_only_fit_recovers_the_coupling_and_who_looks_at_whom():
-    """Four people, 40 s. (At 30 s the same scene's person 0 has a rival mode, κ 0.79 for 0.41, reported ``not_mixed``.)"""
+@pytest.fixture(scope="module")
+def group():
+    """Four people, 40 s, head pose only. (At 30 s, person 0 has a rival mode, κ 0.79 for 0.41, ``not_mixed``.)"""
     scene = simulate_conversation(jax.random.key(3), num_people=4, duration_s=40.0)
-    data = joint_data(scene.eye_positions, scene.R_world_from_head, None, present=scene.present,
-                      speaking=scene.speaking, fps=scene.fps)
-    fit = fit_joint(data, key=jax.random.key(0), num_warmup=100, num_samples=100)
+    return scene, joint_data(scene.eye_positions, scene.R_world_from_head, None, present=scene.present,
+                             speaking=scene.speaking, fps=scene.fps)
+
+
+def test_head_only_fit_recovers_the_coupling_and_who_looks_at_whom(group):
+    scene, data = group
+    fit = fit_joint(data, key=jax.random.key(0), num_warmup=50, num_samples=50)
     kappa = np.asarray(fit.samples["coupling"]).mean(axis=0)
     np.testing.assert_array_less(np.abs(kappa[:, 0] - scene.head_fraction), 0.1)
     lag = 1.0 / (scene.fps * math.expm1(1.0 / (scene.config.head_lag_s * scene.fps)))  # the lag's discrete form
@@ -202,12 +207,10 @@ def test_head_only_fit_recovers_the_coupling_and_who_looks_at_whom():
     assert right >= 0.9 and right >= baseline + 0.1, (right, baseline)
 
 
-def test_coupling_profile_peaks_near_each_persons_coupling():
-    scene = simulate_conversation(jax.random.key(5), num_people=6, duration_s=60.0)
-    data = joint_data(scene.eye_positions, scene.R_world_from_head, None, present=scene.present,
-                      speaking=scene.speaking, fps=scene.fps)
+def test_coupling_profile_peaks_near_each_persons_coupling(group):
+    scene, data = group  # the same shapes as the fit's start: its profile program is compiled once
     scores, bias = coupling_profile(data, jax.random.key(1))
-    assert scores.shape == (COUPLING_GRID.size, 6) and bias.shape == (COUPLING_GRID.size, 6, 2)
+    assert scores.shape == (COUPLING_GRID.size, 4) and bias.shape == (COUPLING_GRID.size, 4, 2)
     np.testing.assert_array_less(np.abs(COUPLING_GRID[scores.argmax(axis=0)] - scene.head_fraction), 0.051)
     with pytest.raises(ValueError, match="head pose only"):
         coupling_profile(joint_data(scene.eye_positions, scene.R_world_from_head, scene.gaze_angles,
