@@ -16,6 +16,7 @@ import warnings
 import numpy as np
 from jaxtyping import Bool, Float, Int
 
+from jaxgaze.geometry import wrap_angle
 from jaxgaze.rays import UnitWarning
 
 __all__ = ["JointData", "joint_data"]
@@ -286,10 +287,6 @@ def joint_data(
                      float(window_s), points, point_mask, motion, reference)
 
 
-def _wrap(angle):
-    return (angle + np.pi) % (2.0 * np.pi) - np.pi
-
-
 def _head_motion(R: np.ndarray, present: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
     """``(T, P, 5)`` head yaw and tilt (world) from each person's mean direction ``(P, 2)``, their rates (rad/s,
     backward differences) and ``fps`` where the previous frame is present (0 elsewhere: no rate there)."""
@@ -298,12 +295,12 @@ def _head_motion(R: np.ndarray, present: np.ndarray, fps: float) -> tuple[np.nda
     tilt = np.arcsin(np.clip(forward[..., 2], -1.0, 1.0))
     reference = np.stack([np.angle(np.sum(np.where(present, np.exp(1j * yaw), 0.0), axis=0)),
                           np.sum(np.where(present, tilt, 0.0), axis=0) / present.sum(axis=0)], axis=-1)
-    angles = np.stack([_wrap(yaw - reference[:, 0]), tilt - reference[:, 1]], axis=-1)
+    angles = np.stack([wrap_angle(yaw - reference[:, 0]), tilt - reference[:, 1]], axis=-1)
     angles = np.where(present[..., None], angles, 0.0)
     after = np.zeros(present.shape)  # fps where frame t − 1 is present too
     after[1:] = np.where(present[1:] & present[:-1], fps, 0.0)
     rate = np.zeros_like(angles)
-    rate[1:] = np.concatenate([_wrap(angles[1:, :, :1] - angles[:-1, :, :1]), angles[1:, :, 1:] - angles[:-1, :, 1:]],
+    rate[1:] = np.concatenate([wrap_angle(angles[1:, :, :1] - angles[:-1, :, :1]), angles[1:, :, 1:] - angles[:-1, :, 1:]],
                               -1) * after[1:, :, None]
     return np.concatenate([angles, rate, after[..., None]], axis=-1), reference
 
