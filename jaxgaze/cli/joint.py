@@ -3,18 +3,17 @@
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import re
 import sys
 import warnings
 
-import numpy as np
 
 from jaxgaze.cli._common import (CommandError, add_output, add_quiet, add_trust_units, declare_inputs, int_at_least,
                                  positive_float, show_progress, stage, unit_rule, warn, writing)
 from jaxgaze.io.joint import (JOINT_FRAMES_FORMAT, JOINT_INPUTS_FORMAT, joint_frame_columns, read_joint_gaze, read_speech,
                               speaking_by_person, write_joint_frames, write_joint_netcdf)
+from jaxgaze.cli._joint_summary import summary
 
 _DESCRIPTION = """\
 Joint inference of a group recording (Park et al. 2012; Siegfried, Odobez et al.
@@ -59,6 +58,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     a("--steps", default="3000", metavar="N", help="SVI optimisation steps, at least 10 (default 3000)")
     a("--window-s", default="60", metavar="S", help="a concurrence stays put within windows of S s (default 60)")
     a("--seed", default="0", metavar="S", help="random seed (default 0)")
+    a("--head-only", action="store_true", help="no eye tracker: the gaze from head pose alone, with each person's "
+      "head-gaze coupling learnt (gaze columns are ignored and may be absent)")
     a("--min-confidence", default="0.75", metavar="C", help="OpenFace: drop frames with confidence < C (default 0.75)")
     add_trust_units(p)
     add_quiet(p)
@@ -75,13 +76,13 @@ def _number(option: str, text, parse):  # parse(text); its error as a one-line C
         raise CommandError(f"{option}: not a number: {text!r}") from None
 
 
-def _people(args) -> list[str]:
-    """One unique name per GAZE file: --people, else the file stems."""
+def _people(args, gaze) -> list[str]:
+    """One unique name per person: --people, else the file stems (``<stem>_<k>`` in an OpenFace file of several)."""
     source = "--people" if args.people else "file stems"
-    names = ([n.strip() for n in args.people.split(",")] if args.people
-             else [os.path.splitext(os.path.basename(path))[0] for path in args.gaze])
-    if len(names) != len(args.gaze):
-        raise CommandError(f"--people names {len(names)} people for {len(args.gaze)} GAZE files; one per file")
+    names = [n.strip() for n in args.people.split(",")] if args.people else list(gaze.people)
+    if len(names) != len(gaze.people):
+        raise CommandError(f"--people names {len(names)} people for the {len(gaze.people)} in the GAZE files "
+                           f"({', '.join(gaze.people)}); one name each, in that order")
     for name in names:
         if not name or _RESERVED.match(name):
             raise CommandError(f"{source}: the person name {name!r} is empty or reserved for a target of the model")
@@ -112,7 +113,7 @@ def _speaker_map(args, people) -> dict:
 
 def _check_inputs(args, gaze) -> None:
     """One frame of reference for every file; --fps agrees with the timestamps."""
-    openface = [p for p, f in zip(args.gaze, gaze.formats) if f == "openface"]
+    openface = list(dict.fromkeys(p for p, f in zip(gaze.paths, gaze.formats) if f == "openface"))
     if openface and len(openface) < len(args.gaze):
         raise CommandError("cannot mix OpenFace files (camera frame) with gaze CSVs (world frame): convert them "
                            "all to one world frame", openface[0])
@@ -125,25 +126,10 @@ def _check_inputs(args, gaze) -> None:
                            "per second); leave --fps out to use the timestamps")
 
 
-def _file_of(args, people, message: str):
+def _file_of(gaze, people, message: str):
     """The GAZE file of the person a message names (``person 'ann'``), else None."""
     named = re.search(r"person '([^']*)'", message)
-    return args.gaze[people.index(named[1])] if named and named[1] in people else None
-
-
-def _summary(posterior, data, written) -> str:
-    bias, width = (np.asarray(a) * (180.0 / math.pi) for a in (posterior.bias, posterior.cone_width))
-    stats = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in posterior.sampler.diagnostics._asdict().items())
-    check = (posterior.predictive_check[k] for k in ("elsewhere_observed", "elsewhere_predicted", "flagged"))
-    return "\n".join([
-        f"people: {', '.join(posterior.people)} ({data.num_frames} frames at {data.fps:g} fps, "
-        + ("with speech)" if data.has_speech else "no speech)"),
-        "bias (yaw, tilt) deg: " + "; ".join(f"{n} ({b[0]:+.2f}, {b[1]:+.2f})" for n, b in zip(posterior.people, bias)),
-        "cone width deg: " + "; ".join(f"{n} {w:.2f}" for n, w in zip(posterior.people, width)),
-        f"concurrences: {posterior.num_concurrences}; diagnostics ({posterior.method}): {stats}"] + [
-        f"predictive check: {n}'s gaze goes elsewhere in {o:.0%} of frames, the fit predicts {e:.0%} (a wrong mode?)"
-        for n, o, e, f in zip(posterior.people, *check) if f] + [
-        f"written to {' and '.join(written)}"])
+    return gaze.paths[people.index(named[1])] if named and named[1] in people else None
 
 
 def run(args) -> int:
@@ -156,11 +142,11 @@ def run(args) -> int:
         ("--warmup", args.warmup, int_at_least(1)), ("--draws", args.draws, int_at_least(8)),
         ("--steps", args.steps, int_at_least(10)), ("--seed", args.seed, int), ("--window-s", args.window_s,
         positive_float), ("--min-confidence", args.min_confidence, float), ("--fps", args.fps, positive_float)))
-    people = _people(args)
-    speaker_map = _speaker_map(args, people)
     with warnings.catch_warnings(record=True) as caught:  # printed once every input has been checked
         warnings.simplefilter("always")
-        gaze = read_joint_gaze(args.gaze, min_confidence=min_confidence)
+        gaze = read_joint_gaze(args.gaze, min_confidence=min_confidence, head_only=args.head_only)
+        people = _people(args, gaze)
+        speaker_map = _speaker_map(args, people)
         _check_inputs(args, gaze)
         fps = args.fps or gaze.timestamp_rate or _DEFAULT_FPS
         times = gaze.times(fps)
@@ -179,8 +165,9 @@ def run(args) -> int:
     try:
         with warnings.catch_warnings(record=True) as caught:  # the unit rule: an error unless --trust-units
             warnings.simplefilter("always")
-            with unit_rule(args, lambda what: _file_of(args, people, what), gaze.frames):
-                data = joint_data(gaze.eye_positions, gaze.R_world_from_head, gaze.gaze_angles, present=gaze.present,
+            with unit_rule(args, lambda what: _file_of(gaze, people, what), gaze.frames):
+                data = joint_data(gaze.eye_positions, gaze.R_world_from_head, None if args.head_only else
+                                  gaze.gaze_angles, present=gaze.present,
                                   speaking=speaking, people=people, fps=fps, window_s=window_s)
         for note in dict.fromkeys(str(w.message) for w in caught):
             warn(note)
@@ -203,7 +190,7 @@ def run(args) -> int:
             write_joint_frames(args.per_frame, posterior, gaze.frames, times)
         write_joint_netcdf(args.out, posterior)
     if not args.quiet:
-        print(_summary(posterior, data, [args.out] + ([args.per_frame] if args.per_frame else [])))
+        print(summary(posterior, data, [args.out] + ([args.per_frame] if args.per_frame else [])))
     if not succeeded(posterior):
         print(f"jaxgaze joint: {posterior.message}", file=sys.stderr)
         return 1

@@ -14,13 +14,13 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 
-from jaxgaze.io.tools.openface import looks_like_openface, read_openface
+from jaxgaze.io.tools.openface import OpenFaceTrack, looks_like_openface, read_openface
 from jaxgaze.io.poses import check_quaternion
 from jaxgaze.io.text import InputFileError, read_csv_table, read_text
 from jaxgaze.poses import quaternions_to_matrices
 
 __all__ = ["GAZE_COLUMNS", "TARGET_COLUMNS", "GazeFileError", "GazeTrack", "is_openface_csv",
-           "read_gaze", "read_gaze_csv", "read_openface_gaze", "read_targets_csv", "parse_point", "REFERENCE_AXES"]
+           "read_gaze", "read_gaze_csv", "read_openface_gaze", "openface_gaze_track", "read_targets_csv", "parse_point", "REFERENCE_AXES"]
 
 #: Required columns of our gaze CSV, one row per frame: ``yaw, tilt`` the estimated gaze in the head
 #: frame (radians, uncorrected), ``q`` the unit quaternion (w, x, y, z) of R_world_from_head, ``e`` the
@@ -108,16 +108,18 @@ def _check_increasing(time, frame, path, lines=None) -> None:
                             None if lines is None else int(lines[i]))
 
 
-def read_gaze_csv(path) -> GazeTrack:
+def read_gaze_csv(path, *, with_gaze: bool = True) -> GazeTrack:
     """Read our per-frame gaze CSV (columns :data:`GAZE_COLUMNS`, optional ``timestamp`` and
-    :data:`TARGET_COLUMNS`), sorted by frame.
+    :data:`TARGET_COLUMNS`), sorted by frame. Without ``with_gaze`` (head pose only), ``yaw, tilt`` are neither needed nor
+    read: the gaze is NaN.
 
     ``yaw`` must lie in [−π, π] and ``tilt`` in [−π/2, π/2] (radians: degrees are caught
     here), the quaternion must be unit as for the pose readers (normalised here), frames
     unique, and timestamps must increase with the frame. Raises :class:`GazeFileError`
     (or the pose readers' error for a quaternion) naming the file and line.
     """
-    table = read_csv_table(path, GAZE_COLUMNS, ("timestamp",) + TARGET_COLUMNS, error=GazeFileError, what="gaze")
+    required = GAZE_COLUMNS if with_gaze else tuple(c for c in GAZE_COLUMNS if c not in ("yaw", "tilt"))
+    table = read_csv_table(path, required, ("timestamp",) + TARGET_COLUMNS, error=GazeFileError, what="gaze")
     present = [c for c in TARGET_COLUMNS if table.has(c)]
     if present and len(present) < len(TARGET_COLUMNS):
         missing = [c for c in TARGET_COLUMNS if c not in present]
@@ -127,7 +129,7 @@ def read_gaze_csv(path) -> GazeTrack:
     rows, seen = [], {}
     for row in table.rows:
         frame = row.integer("frame")
-        yaw, tilt = _number(row, "yaw"), _number(row, "tilt")
+        yaw, tilt = (_number(row, "yaw"), _number(row, "tilt")) if with_gaze else (math.nan, math.nan)
         if abs(yaw) > math.pi + 1e-9:
             raise row.error(f"column 'yaw' must be an angle in radians within [-pi, pi], got {row.cell('yaw')} "
                             "(degrees?)")
@@ -162,7 +164,12 @@ def read_openface_gaze(path, *, face_id: Optional[int] = None, min_confidence: f
     """An OpenFace 2 CSV (:func:`~jaxgaze.io.tools.openface.read_openface`) as a :class:`GazeTrack` in our camera
     frame: the gaze angles in the head frame, ``R_camera_from_head``, the eyes at OpenFace's head position
     ``pose_T`` (metres) and no targets. Timestamps must increase with the frame."""
-    track = read_openface(path, min_confidence=min_confidence, face_id=face_id)
+    return openface_gaze_track(read_openface(path, min_confidence=min_confidence, face_id=face_id), path)
+
+
+def openface_gaze_track(track: OpenFaceTrack, path) -> GazeTrack:
+    """An :class:`~jaxgaze.io.tools.openface.OpenFaceTrack` of ``path`` as a :class:`GazeTrack` (see
+    :func:`read_openface_gaze`)."""
     frame = np.asarray(track.frame, dtype=np.int64)
     time = np.asarray(track.timestamp, dtype=np.float64)
     _check_increasing(time, frame, path)

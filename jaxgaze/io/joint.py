@@ -20,7 +20,8 @@ from typing import NamedTuple, Optional
 import numpy as np
 
 from jaxgaze.bias.speech import SpeechSegments, speaking_at
-from jaxgaze.io.gaze import GazeFileError, GazeTrack, read_gaze
+from jaxgaze.io.gaze import GazeFileError, GazeTrack, is_openface_csv, openface_gaze_track, read_gaze_csv
+from jaxgaze.io.tools.openface import read_openface_people
 from jaxgaze.io.speech import SpeechFileError, read_rttm, read_segments_csv
 from jaxgaze.io.text import atomic_path, csv_writer, format_float, read_text
 from jaxgaze.nuts import set_units, split_chains
@@ -38,8 +39,10 @@ class JointGaze(NamedTuple):
 
     ``frames (T,)`` int64; ``time (T,)`` seconds when every file has timestamps, else ``None``;
     ``eye_positions (T, P, 3)``, ``R_world_from_head (T, P, 3, 3)``, ``gaze_angles (T, P, 2)``
-    (NaN, identity and NaN where a person is absent); ``present (T, P)``; ``tracks`` the
-    :class:`~jaxgaze.io.gaze.GazeTrack` of each file; ``paths``.
+    (NaN, identity and NaN where a person is absent; NaN gaze throughout for head pose only); ``present (T, P)``;
+    ``tracks`` the :class:`~jaxgaze.io.gaze.GazeTrack` of each person; ``paths`` the file of each person;
+    ``people`` each person's default name: the file's stem, ``<stem>_<k>`` for the ``k``-th person of an
+    OpenFace file of several faces.
     """
 
     frames: np.ndarray
@@ -50,10 +53,11 @@ class JointGaze(NamedTuple):
     present: np.ndarray
     tracks: tuple
     paths: tuple
+    people: tuple
 
     @property
     def formats(self) -> tuple:
-        """``"csv"`` or ``"openface"`` per file."""
+        """``"csv"`` or ``"openface"`` per person."""
         return tuple(t.format for t in self.tracks)
 
     @property
@@ -97,16 +101,42 @@ def _aligned_time(tracks: list[GazeTrack], paths, frames) -> Optional[np.ndarray
     return time
 
 
-def read_joint_gaze(paths, *, min_confidence: float = 0.75) -> JointGaze:
-    """Read one gaze file per person (:func:`~jaxgaze.io.gaze.read_gaze`: our gaze CSV or an OpenFace 2
-    CSV) and align them on the union of their frame ids; a person missing from a frame is absent there.
+def read_joint_gaze(paths, *, min_confidence: float = 0.75, head_only: bool = False) -> JointGaze:
+    """Read the gaze files of a group and align them on the union of their frame ids; a person missing from a
+    frame is absent there.
+
+    Each file is our gaze CSV (:func:`~jaxgaze.io.gaze.read_gaze_csv`, one person) or an OpenFace 2 CSV. An
+    OpenFace file of several faces (``FaceLandmarkVidMulti``: a group filmed by one camera) gives one person
+    per face, re-linked by head position (:func:`~jaxgaze.io.tools.openface.read_openface_people`); a warning
+    names them. With ``head_only`` the gaze columns are not read, and may be absent (the gaze is NaN: pass
+    ``None`` to :func:`~jaxgaze.joint.joint_data`).
 
     Every file must be in one frame of reference (checking that is the caller's: see
-    :attr:`JointGaze.formats`). Warns when some files, not all, have timestamps. Raises the readers' errors, and :class:`~jaxgaze.io.gaze.GazeFileError`
-    when the files' timestamps disagree on a frame or do not increase with the frame.
+    :attr:`JointGaze.formats`). Warns when some files, not all, have timestamps. Raises the readers' errors, and
+    :class:`~jaxgaze.io.gaze.GazeFileError` when the files' timestamps disagree on a frame or do not increase with the frame.
     """
     paths = tuple(paths)
-    tracks = [read_gaze(path, min_confidence=min_confidence) for path in paths]
+    tracks, owners, people = [], [], []
+    for path in paths:
+        stem = os.path.splitext(os.path.basename(os.fspath(path)))[0]
+        if not is_openface_csv(read_text(path, GazeFileError, "gaze")):
+            tracks.append(read_gaze_csv(path, with_gaze=not head_only))
+            owners.append(path)
+            people.append(stem)
+            continue
+        found = read_openface_people(path, min_confidence=min_confidence, with_gaze=not head_only)
+        names = [stem] if len(found.tracks) == 1 else [f"{stem}_{k}" for k in range(len(found.tracks))]
+        for track in found.tracks:
+            tracks.append(openface_gaze_track(track, path))
+            owners.append(path)
+        people.extend(names)
+        if len(names) > 1:
+            where = "; ".join(f"{n} at ({', '.join(f'{x:.2f}' for x in np.median(t.head_position_camera, 0))}) m, "
+                              f"face_id {', '.join(map(str, ids))}" for n, t, ids in zip(names, found.tracks,
+                                                                                        found.face_ids))
+            warnings.warn(f"{os.fspath(path)}: {len(names)} people, OpenFace's faces re-linked by head position "
+                          f"({found.relinks} re-links; median position in the camera frame, +x forward, +y left, "
+                          f"+z up): {where}", stacklevel=2)
     frames = np.unique(np.concatenate([t.frame for t in tracks]))
     T, P = frames.size, len(tracks)
     eyes, gaze = np.full((T, P, 3), np.nan), np.full((T, P, 2), np.nan)
@@ -116,7 +146,8 @@ def read_joint_gaze(paths, *, min_confidence: float = 0.75) -> JointGaze:
         rows = np.searchsorted(frames, track.frame)
         eyes[rows, p], R[rows, p], gaze[rows, p] = track.eye, track.R_world_from_head, track.gaze_angles
         present[rows, p] = True
-    gaze = JointGaze(frames, _aligned_time(tracks, paths, frames), eyes, R, gaze, present, tuple(tracks), paths)
+    gaze = JointGaze(frames, _aligned_time(tracks, owners, frames), eyes, R, gaze, present, tuple(tracks),
+                     tuple(owners), tuple(people))
     if gaze.some_timed:
         warnings.warn("not every gaze file has timestamps: they are ignored and frame f is at f / fps seconds",
                       stacklevel=2)
@@ -166,11 +197,16 @@ GAZE is one file per person, each one of
   * our gaze CSV (see 'jaxgaze bias -h'): frame, yaw, tilt (head frame,
     radians), qw, qx, qy, qz (R_world_from_head), ex, ey, ez (eye midpoint,
     world frame, metres), optional timestamp (seconds);
-  * an OpenFace 2 FeatureExtraction CSV (one face; --min-confidence). Each
-    OpenFace file is in its own camera's frame, so several of them are only
+  * an OpenFace 2 CSV (--min-confidence): FeatureExtraction (one face), or
+    FaceLandmarkVidMulti (a group filmed by one camera: one person per face,
+    faces re-linked by head position, named <stem>_0, <stem>_1, ...; a note
+    gives where each is). Each OpenFace file is in its own camera's frame
+    (+x along the optical axis, +y left, +z up), so several of them are only
     accepted with --same-camera (one camera filmed everyone).
+With --head-only (no eye tracker) only the head pose is used: the gaze
+columns may be absent, and each person's head-gaze coupling is learnt.
 All files must share one world frame. A person is named by the file's stem
-unless --people is given. Frames are aligned on the union of the frame ids of
+unless --people is given (one name per person, in the order above). Frames are aligned on the union of the frame ids of
 all files; a person missing from a frame is absent there. Frame times are the
 timestamps when every file has them, else frame / --fps.
 

@@ -58,7 +58,7 @@ _MAX_PROBABILITY_DRAWS = 200
 TWIN_DISTANCE = 0.15
 #: BFGS steps of the start's refinement (:func:`_refine_start`).
 _REFINE_STEPS = 300
-#: The least curvature magnitude of the potential that NUTS's mass matrix takes (:func:`_laplace_inverse_mass`);
+#: The least curvature magnitude of the potential that NUTS's mass matrix takes (:func:`_laplace_evidence`);
 #: the weakest prior curvature is about 0.1 (a logit of sd 3), so only a direction the start is no mode in
 #: is raised to it.
 _MIN_CURVATURE = 0.01
@@ -128,7 +128,7 @@ def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: 
        independent frames every gaze still pulls the bias towards its nearest
        candidate, so the mode of that model is in the right basin.
     2. With ``to_mode``, from there, the mode of the model itself (``ρ`` free). Its Hessian is NUTS's
-       mass matrix (:func:`_laplace_inverse_mass`); the first mode can be a saddle of
+       mass matrix (:func:`_laplace_evidence`); the first mode can be a saddle of
        this model, with a strongly negative curvature along a concurrence, and no
        mass matrix taken there fits the posterior.
 
@@ -171,22 +171,24 @@ def _twin_concurrences(unconstrained: dict, centres, prior: JointPrior) -> list[
     return [k for k in range(distance.shape[0]) if np.any(distance[k, :k] < TWIN_DISTANCE)]
 
 
-@functools.partial(jax.jit, static_argnames=("prior",))
-def _laplace_inverse_mass(start: dict, arrays: ModelArrays, prior: JointPrior):
-    """NUTS's inverse mass matrix: the inverse Hessian of the potential at the refined start (its mode).
+def _laplace_evidence(unconstrained: dict, arrays: ModelArrays, prior: JointPrior) -> tuple[float, jax.Array]:
+    """The Laplace log evidence of the mode ``unconstrained`` (:func:`~jaxgaze.joint.rivals.log_evidence`) and the
+    inverse Hessian there, NUTS's inverse mass matrix, in one program (the potential evaluated op by op took longer
+    than compiling it: 6 s a call on a 4-person scene).
 
     The posterior's scales differ by a factor of 100 (a bias of 0.1° against a
     logit); from the identity, NUTS's first warm-up windows take 150–180 leapfrog
     steps per draw, from this matrix 7–8, and no window is spent learning it.
     """
+    evidence, inverse = _laplace_parts(unconstrained, arrays, prior)
+    return float(evidence), inverse
+
+
+@functools.partial(jax.jit, static_argnames=("prior",))
+def _laplace_parts(unconstrained: dict, arrays: ModelArrays, prior: JointPrior):
     potential = functools.partial(potential_energy, _model(prior, None), tuple(arrays), {})
-    return laplace_inverse_mass(potential, start, _MIN_CURVATURE)
-
-
-def _laplace_evidence(unconstrained: dict, arrays: ModelArrays, prior: JointPrior):
-    """The Laplace log evidence of the mode ``unconstrained`` and the inverse Hessian there."""
-    inverse = _laplace_inverse_mass(unconstrained, arrays, prior)
-    return rivals.log_evidence(_model(prior, None), unconstrained, arrays, inverse), inverse
+    inverse = laplace_inverse_mass(potential, unconstrained, _MIN_CURVATURE)
+    return rivals.log_evidence(potential(unconstrained), inverse), inverse
 
 
 def _without_concurrence(values: dict, arrays: ModelArrays, k: int):

@@ -35,7 +35,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import logsumexp
-from numpyro.infer.util import potential_energy
 from scipy.ndimage import maximum_filter
 
 from jaxgaze.joint.model import JointPrior, ModelArrays, candidate_log_probabilities
@@ -171,9 +170,9 @@ def constrained(unconstrained: dict) -> dict:
     return out
 
 
-def log_evidence(model, unconstrained: dict, arrays: ModelArrays, inverse_mass) -> float:
-    """Laplace log evidence ``−U(θ) + ½ log det Σ + d/2 log 2π`` (MacKay 2003, eq. 28.10): comparable between
-    models of different dimension ``d`` (a concurrence more or less)."""
-    energy = potential_energy(model, tuple(arrays), {}, unconstrained)
+def log_evidence(energy, inverse_mass):
+    """Laplace log evidence ``−U(θ) + ½ log det Σ + d/2 log 2π`` (MacKay 2003, eq. 28.10) from the potential ``U`` at
+    the mode and the inverse Hessian ``Σ`` there: comparable between models of different dimension ``d`` (a
+    concurrence more or less). Traceable; ``float`` it outside ``jit``."""
     _, logdet = jnp.linalg.slogdet(inverse_mass)
-    return float(-energy + 0.5 * logdet + 0.5 * inverse_mass.shape[0] * math.log(2 * math.pi))
+    return -energy + 0.5 * logdet + 0.5 * inverse_mass.shape[0] * math.log(2 * math.pi)

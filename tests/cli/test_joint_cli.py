@@ -230,7 +230,7 @@ def _bad_cases(f):
     return {
         "missing gaze file": ([str(d / "nobody.csv"), *gaze[1:]], [], "gaze file not found"),
         "malformed gaze CSV": ([f["broken"], *gaze[1:]], [], "missing column 'ez'"),
-        "--people count": (gaze, ["--people", "a,b"], "--people names 2 people for 3 GAZE files"),
+        "--people count": (gaze, ["--people", "a,b"], "--people names 2 people for the 3 in the GAZE files (ann, "),
         "reserved name": (gaze, ["--people", "a,elsewhere,c"], "reserved"),
         "duplicate name": ([gaze[0], gaze[0], gaze[1]], [], "two people are named 'ann'"),
         "bad --draws": (gaze, ["--draws", "many"], "--draws: not an integer"),

@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
+import csv
 import itertools
 import math
 
+import arviz as az
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxgaze.cli import main
 from jaxgaze.geometry import head_pose_to_rotation
-from jaxgaze.joint import JointPrior, fit_joint, joint_data
+from jaxgaze.io.gaze import GazeFileError
+from jaxgaze.io.joint import read_joint_gaze
+from jaxgaze.io.tools.openface import OpenFaceFileError, write_openface_faces
+from jaxgaze.joint import JointPrior, joint_data
 from jaxgaze.joint.infer import _arrays
 from jaxgaze.joint.init import COUPLING_GRID, coupling_profile
 from jaxgaze.joint.model import head_gaze_angles, marginal_log_likelihood
@@ -189,22 +195,93 @@ def group():
                              speaking=scene.speaking, fps=scene.fps)
 
 
-def test_head_only_fit_recovers_the_coupling_and_who_looks_at_whom(group):
+def _camera_files(scene, d):
+    """The scene as one camera films it (``FaceLandmarkVidMulti``: one OpenFace CSV of every face, 3 m away, turned
+    30° in yaw; face ids 0 and 1 swapped from frame 200 and person 2 re-detected as face 7 from frame 100) and its
+    speech as RTTM, speakers ``p0, p1, ...``. Returns the two paths and the names of the people in the file's order."""
+    T, P = scene.present.shape
+    c, s = math.cos(math.radians(30.0)), math.sin(math.radians(30.0))
+    R_world_from_camera = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    camera = np.asarray(scene.eye_positions)[scene.present].mean(0) - 3.0 * R_world_from_camera[:, 0]
+    t, i = np.nonzero(scene.present)
+    face = np.where((t >= 200) & (i < 2), 1 - i, np.where((t >= 100) & (i == 2), 7, i))
+    eyes = (np.asarray(scene.eye_positions)[t, i] - camera) @ R_world_from_camera
+    R = np.einsum("ji,njk->nik", R_world_from_camera, np.asarray(scene.R_world_from_head)[t, i])
+    write_openface_faces(d / "meeting.csv", t + 1, face, eyes, R[:, :, 0], R_camera_from_head=R, fps=scene.fps)
+    lines = [f"SPEAKER meet 1 {a / scene.fps:.3f} {(b - a) / scene.fps:.3f} <NA> <NA> p{p} <NA> <NA>"
+             for p in range(P) for a, b in _runs(scene.speaking[:, p])]
+    (d / "speech.rttm").write_text("\n".join(lines) + "\n")
+    first = [(int(np.argmax(scene.present[:, p])), p) for p in range(P)]  # people in order of first appearance
+    return d / "meeting.csv", d / "speech.rttm", [f"p{p}" for _, p in sorted(first)]
+
+
+def _runs(flags):
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], np.asarray(flags, np.int8), [0]])))
+    return list(zip(edges[::2], edges[1::2]))
+
+
+def test_one_video_of_the_group_gives_the_couplings_and_who_looks_at_whom(group, tmp_path, capsys):
+    """``jaxgaze joint meeting.csv --head-only``: one OpenFace file of the whole group, in the camera's frame, and
+    the speech; the couplings, the lag and who looks at whom against the simulation's truth."""
     scene, data = group
-    fit = fit_joint(data, key=jax.random.key(0), num_warmup=50, num_samples=50)
-    kappa = np.asarray(fit.samples["coupling"]).mean(axis=0)
-    np.testing.assert_array_less(np.abs(kappa[:, 0] - scene.head_fraction), 0.1)
+    video, rttm, people = _camera_files(scene, tmp_path)
+    status = main(["joint", str(video), "--head-only", "--speech", str(rttm), "--people", ",".join(people),
+                   "--warmup", "50", "--draws", "50", "--out", str(tmp_path / "fit.nc"),
+                   "--per-frame", str(tmp_path / "frames.csv")])
+    out, err = capsys.readouterr()
+    assert status in (0, 1) and "Traceback" not in err, err  # 50 draws rarely reach the ESS of a success
+    assert "meeting.csv: 4 people" in err and "re-links" in err and "head-gaze coupling" in out
+    order = [int(name[1:]) for name in people]
+    posterior = az.from_netcdf(tmp_path / "fit.nc").posterior
+    kappa = posterior["coupling"].mean(("chain", "draw")).values[:, 0]
+    np.testing.assert_array_less(np.abs(kappa - np.asarray(scene.head_fraction)[order]), 0.1)
     lag = 1.0 / (scene.fps * math.expm1(1.0 / (scene.config.head_lag_s * scene.fps)))  # the lag's discrete form
-    np.testing.assert_array_less(np.abs(np.asarray(fit.samples["head_lag"]).mean(axis=0) - lag), 0.05)
-    target, P = np.asarray(scene.target), data.num_people
-    at_person = data.present & (target >= 0) & (target < P)
-    right = np.mean(fit.map_targets()[at_person] == target[at_person])
+    np.testing.assert_array_less(np.abs(posterior["head_lag"].mean(("chain", "draw")).values - lag), 0.05)
+    with open(tmp_path / "frames.csv", newline="") as handle:
+        rows = [r for r in csv.DictReader(handle) if r["present"] == "1"]
+    P = data.num_people
+    truth = np.asarray(scene.target)
+    looked = [(truth[int(r["frame"]) - 1, int(r["person"][1:])], r["target"]) for r in rows]
+    at_person = [(f"p{j}", target) for j, target in looked if 0 <= j < P]
+    right = np.mean([a == b for a, b in at_person])
     forward = data.R_world_from_head[..., :, 0]
     toward = data.eye_positions[:, None] - data.eye_positions[:, :, None]
     cosine = np.einsum("tik,tijk->tij", forward, toward / np.maximum(np.linalg.norm(toward, axis=-1), 1e-9)[..., None])
     nearest = np.where(np.eye(P, dtype=bool)[None], -2.0, cosine).argmax(-1)
-    baseline = np.mean(nearest[at_person] == target[at_person])
-    assert right >= 0.9 and right >= baseline + 0.1, (right, baseline)
+    mask = data.present & (truth >= 0) & (truth < P)
+    baseline = np.mean(nearest[mask] == truth[mask])
+    assert len(at_person) == mask.sum() and right >= 0.9 and right >= baseline + 0.1, (right, baseline)
+
+
+def test_head_pose_only_files_need_no_gaze_columns(group, tmp_path):
+    """Our gaze CSV without ``yaw, tilt`` and an OpenFace file of faces turned away (no valid gaze angles) are read
+    for head pose only, and refused without ``head_only``."""
+    scene, _ = group
+    video, _, people = _camera_files(scene, tmp_path)
+    with open(video, newline="") as handle:  # as FeatureExtraction -pose writes it: no gaze columns
+        table = list(csv.reader(handle))
+    table = [[cell for cell, name in zip(row, table[0]) if not name.startswith("gaze")] for row in table]
+    with open(tmp_path / "pose_only.csv", "w", newline="") as handle:
+        csv.writer(handle).writerows(table)
+    for path in (video, tmp_path / "pose_only.csv"):
+        with pytest.warns(UserWarning, match="4 people, OpenFace's faces re-linked"):
+            read = read_joint_gaze([path], head_only=True)
+        stem = path.stem
+        assert read.people == tuple(f"{stem}_{k}" for k in range(4)) and np.isnan(read.gaze_angles).all()
+        order = [int(name[1:]) for name in people]  # the re-linked people are the scene's, despite the id swaps
+        np.testing.assert_array_equal(read.present, np.asarray(scene.present)[read.frames - 1][:, order])
+        np.testing.assert_allclose(read.R_world_from_head[read.present][:, 2, 2],
+                                   np.asarray(scene.R_world_from_head)[read.frames - 1][:, order][read.present][:, 2, 2],
+                                   atol=1e-9)  # the head's up axis keeps its height in a level camera
+    rows = [["frame", "qw", "qx", "qy", "qz", "ex", "ey", "ez"], [0, 1, 0, 0, 0, 0.0, 0.0, 1.2],
+            [1, 1, 0, 0, 0, 0.0, 0.0, 1.2]]
+    (tmp_path / "ann.csv").write_text("\n".join(",".join(map(str, r)) for r in rows) + "\n")
+    track = read_joint_gaze([tmp_path / "ann.csv"], head_only=True)
+    assert track.people == ("ann",) and np.isnan(track.gaze_angles).all() and track.present.all()
+    with pytest.raises(GazeFileError, match="'yaw', 'tilt'"):
+        read_joint_gaze([tmp_path / "ann.csv"])
+    with pytest.raises(OpenFaceFileError, match="missing columns 'gaze_angle_x', 'gaze_angle_y'"):
+        read_joint_gaze([tmp_path / "pose_only.csv"])
 
 
 def test_coupling_profile_peaks_near_each_persons_coupling(group):

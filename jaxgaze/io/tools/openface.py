@@ -54,6 +54,8 @@ __all__ = [
     "OpenFaceFileError",
     "OpenFaceTrack",
     "read_openface",
+    "OpenFacePeople",
+    "read_openface_people",
     "openface_pose_and_gaze",
     "OPENFACE_MEAN_GAZE_ERROR",
     "DEFAULT_BANDWIDTH_OPENFACE",
@@ -171,7 +173,8 @@ class OpenFaceTrack(NamedTuple):
         r2 = x * x + y * y
         off_pole = r2 > 0
         yaw = np.arctan2(np.where(off_pole, y, 0.0), np.where(off_pole, x, 1.0))
-        return np.stack([yaw, np.arctan2(z, np.sqrt(r2))], axis=-1)
+        angles = np.stack([yaw, np.arctan2(z, np.sqrt(r2))], axis=-1)
+        return np.where(np.isfinite(d).all(axis=-1, keepdims=True), angles, np.nan)  # NaN: head pose only
 
 
 def _openface_euler_to_matrix(rx: np.ndarray, ry: np.ndarray, rz: np.ndarray) -> np.ndarray:
@@ -280,43 +283,55 @@ def read_openface(path, *, min_confidence: float = 0.75, face_id: Optional[int] 
     (−π/2, π/2), a duplicate frame of the chosen face, several faces without
     ``face_id``, an absent ``face_id``, or every frame dropped.
     """
+    return _read_tracks(path, min_confidence, face_id, with_gaze=True)[0]
+
+
+def _read_tracks(path, min_confidence: float, face_id: Optional[int], *, with_gaze: bool,
+                 link_gate_m: Optional[float] = None):
+    """:func:`read_openface` (``link_gate_m`` None: one face, ``face_id`` or the only one) and
+    :func:`read_openface_people` (every face, re-linked): the file parsed, checked and converted once."""
     min_confidence = float(min_confidence)
     if not math.isfinite(min_confidence):
         raise ValueError(f"read_openface: min_confidence must be finite, got {min_confidence}")
     table = read_csv_table(
-        path, OPENFACE_COLUMNS, ("face_id",), error=OpenFaceFileError, what="OpenFace", lower=False,
+        path, OPENFACE_COLUMNS if with_gaze else OPENFACE_COLUMNS[:4] + _GAZE_POSE[2:], ("face_id",), error=OpenFaceFileError, what="OpenFace", lower=False,
         hint=_missing_columns_hint,
         empty="empty file: expected an OpenFace CSV header (frame, face_id, timestamp, ...)",
     )
-    columns = [c for c in _BOOKKEEPING if table.has(c)] + list(_GAZE_POSE)
+    gaze = _GAZE_POSE[:2] if with_gaze else ()
+    pose = _GAZE_POSE[2:]
+    columns = [c for c in _BOOKKEEPING if table.has(c)] + list(gaze) + list(pose)
     where, values = _parse_columns(table, columns)
+
+    faces = _exact_ids(table, "face_id") if "face_id" in columns else np.zeros(len(where), dtype=np.int64)
+    present = sorted(set(faces.tolist()))
+    everyone = link_gate_m is not None
+    if everyone:
+        mine = np.ones(len(where), dtype=bool)
+    else:
+        if face_id is None:
+            if len(present) > 1:
+                raise OpenFaceFileError(
+                    f"several faces (face_id {first_few(present, 5)}); pass face_id= to choose one", path
+                )
+            face_id = present[0]
+        elif int(face_id) not in present:
+            raise OpenFaceFileError(
+                f"no rows with face_id {face_id} (face_id present: {first_few(present, 5)})", path
+            )
+        mine = faces == int(face_id)
+    where, values, faces = where[mine], values[mine], faces[mine]
     col = {c: values[:, j] for j, c in enumerate(columns)}
+    frames = _exact_ids(table, "frame")[mine]
 
     def fail_at(mask, message):
         _fail_at(mask, message, path, where)
 
-    faces = _exact_ids(table, "face_id") if "face_id" in col else np.zeros(len(where), dtype=np.int64)
-    present = sorted(set(faces.tolist()))
-    if face_id is None:
-        if len(present) > 1:
-            raise OpenFaceFileError(
-                f"several faces (face_id {first_few(present, 5)}); pass face_id= to choose one", path
-            )
-        face_id = present[0]
-    elif int(face_id) not in present:
-        raise OpenFaceFileError(
-            f"no rows with face_id {face_id} (face_id present: {first_few(present, 5)})", path
-        )
-    mine = faces == int(face_id)
-    where, values = where[mine], values[mine]
-    col = {c: values[:, j] for j, c in enumerate(columns)}
-    frames = _exact_ids(table, "frame")[mine]
-
-    first: dict[int, int] = {}
-    for frame, line in zip(frames.tolist(), where.tolist()):
-        seen = first.setdefault(frame, line)
+    first: dict[tuple[int, int], int] = {}
+    for key, line in zip(zip(frames.tolist(), faces.tolist()), where.tolist()):
+        seen = first.setdefault(key, line)
         if seen != line:
-            raise OpenFaceFileError(f"duplicate frame {frame} of face_id {face_id} (first on line {seen})", path, line)
+            raise OpenFaceFileError(f"duplicate frame {key[0]} of face_id {key[1]} (first on line {seen})", path, line)
 
     failed = col["success"] == 0
     unsure = ~failed & (col["confidence"] < min_confidence)
@@ -324,34 +339,42 @@ def read_openface(path, *, min_confidence: float = 0.75, face_id: Optional[int] 
     keep = ~(failed | unsure)
     total = int(mine.sum())
     summary = ", ".join(f"{reason}: {count}" for reason, count in dropped.items())
+    which = "rows" if everyone else f"frames of face_id {face_id}"
     if not keep.any():
-        raise OpenFaceFileError(f"no frames left: all {total} frames of face_id {face_id} dropped ({summary})", path)
+        raise OpenFaceFileError(f"no frames left: all {total} {which} dropped ({summary})", path)
     if not keep.all():
-        warnings.warn(
-            f"{os.fspath(path)}: dropped {total - int(keep.sum())} of {total} frames of face_id {face_id} ({summary})",
-            stacklevel=2,
-        )
-    where, values, frames = where[keep], values[keep], frames[keep]
+        warnings.warn(f"{os.fspath(path)}: dropped {total - int(keep.sum())} of {total} {which} ({summary})",
+                      stacklevel=3)
+    where, values, frames, faces = where[keep], values[keep], frames[keep], faces[keep]
     col = {c: values[:, j] for j, c in enumerate(columns)}
-    for c in _GAZE_POSE:
+    for c in (*gaze, *pose):
         fail_at(
             ~np.isfinite(col[c]), lambda i, c=c: f"column '{c}' is not finite in a kept frame: {float(col[c][i])!r}"
         )
-    _check_gaze_angles(col, fail_at)
+    if gaze:
+        _check_gaze_angles(col, fail_at)
+        g_cv = _gaze_from_angles(col["gaze_angle_x"], col["gaze_angle_y"])
+    else:
+        g_cv = np.full((len(where), 3), np.nan)
+    R_cv = _openface_euler_to_matrix(col["pose_Rx"], col["pose_Ry"], col["pose_Rz"])
+    position = np.stack([col["pose_Tx"], col["pose_Ty"], col["pose_Tz"]], axis=-1) / 1000.0 @ R_OURS_FROM_OPENCV.T
+    person, relinks = (link_openface_faces(frames, faces, position, gate_m=link_gate_m) if everyone and len(present) > 1
+                       else (np.zeros(len(where), dtype=np.int64), 0))
 
-    order = np.argsort(frames, kind="stable")
-    g_cv = _gaze_from_angles(col["gaze_angle_x"][order], col["gaze_angle_y"][order])
-    R_cv = _openface_euler_to_matrix(col["pose_Rx"][order], col["pose_Ry"][order], col["pose_Rz"][order])
-    T_cv = np.stack([col["pose_Tx"], col["pose_Ty"], col["pose_Tz"]], axis=-1)[order] / 1000.0
-    return OpenFaceTrack(
-        frame=frames[order],
-        timestamp=col["timestamp"][order],
-        confidence=col["confidence"][order],
-        gaze_direction_camera=g_cv @ R_OURS_FROM_OPENCV.T,
-        R_camera_from_head=R_OURS_FROM_OPENCV @ R_cv @ R_OPENFACE_MODEL_FROM_HEAD,
-        head_position_camera=T_cv @ R_OURS_FROM_OPENCV.T,
-        dropped=dropped,
-    )
+    def track(rows):
+        rows = rows[np.argsort(frames[rows], kind="stable")]
+        return OpenFaceTrack(
+            frame=frames[rows], timestamp=col["timestamp"][rows], confidence=col["confidence"][rows],
+            gaze_direction_camera=g_cv[rows] @ R_OURS_FROM_OPENCV.T,
+            R_camera_from_head=R_OURS_FROM_OPENCV @ R_cv[rows] @ R_OPENFACE_MODEL_FROM_HEAD,
+            head_position_camera=position[rows], dropped=dropped,
+        )
+
+    tracks = tuple(track(np.flatnonzero(person == k)) for k in range(int(person.max()) + 1))
+    if not everyone:
+        return tracks
+    ids = tuple(tuple(sorted(set(faces[person == k].tolist()))) for k in range(len(tracks)))
+    return OpenFacePeople(tracks, ids, relinks, dropped)
 
 
 def openface_pose_and_gaze(R_camera_from_head, head_position_camera, gaze_direction_camera) -> dict:
@@ -529,6 +552,35 @@ def link_openface_faces(frames, face_ids, positions, *, gate_m: float = OPENFACE
             last_position.append(positions[row])
             last_id.append(int(face_ids[row]))
     return track, relinks
+
+
+class OpenFacePeople(NamedTuple):
+    """Every face of an OpenFace CSV as people (:func:`read_openface_people`).
+
+    ``tracks``: one :class:`OpenFaceTrack` per person, in order of first appearance (NaN gaze when the
+    file has no gaze columns); ``face_ids``: the OpenFace ``face_id`` values each person was seen under;
+    ``relinks``: rows whose person was last seen under another ``face_id``; ``dropped``: rows removed per
+    reason, over the whole file."""
+
+    tracks: tuple
+    face_ids: tuple
+    relinks: int
+    dropped: dict
+
+
+def read_openface_people(path, *, min_confidence: float = 0.75, link_gate_m: float = OPENFACE_LINK_GATE_M,
+                         with_gaze: bool = True) -> OpenFacePeople:
+    """The head pose of every face of an OpenFace 2 CSV (``FaceLandmarkVidMulti``: a group filmed by one camera),
+    one :class:`OpenFaceTrack` per person, in our camera frame.
+
+    Conversions and checks are :func:`read_openface`'s, except that every face is kept and, without
+    ``with_gaze`` (head pose only), the gaze columns are neither needed nor read (the gaze is NaN: a face
+    turned away from the camera has a head pose, not OpenFace's gaze angles). ``face_id`` is a
+    tracker slot, not a person: the kept rows are re-linked into people by their head position ``pose_T``
+    (:func:`link_openface_faces`, gate ``link_gate_m``). A file with one ``face_id`` is one person (as
+    :func:`read_openface`), however far its face jumps. One warning counts the dropped rows.
+    """
+    return _read_tracks(path, min_confidence, None, with_gaze=with_gaze, link_gate_m=link_gate_m)
 
 
 def read_openface_rays(paths, *, camera: Optional[CameraPoses] = None, min_confidence: float = 0.75,

@@ -1,0 +1,35 @@
+"""The text ``jaxgaze joint`` prints when a fit is written: each person's bias, cone width and (head pose only)
+head-gaze coupling, the concurrences, the sampler's diagnostics and the predictive check's flags."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def summary(posterior, data, written) -> str:
+    bias, width = (np.asarray(a) * (180.0 / math.pi) for a in (posterior.bias, posterior.cone_width))
+    stats = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in posterior.sampler.diagnostics._asdict().items())
+    check = (posterior.predictive_check[k] for k in ("elsewhere_observed", "elsewhere_predicted", "flagged"))
+    return "\n".join([
+        f"people: {', '.join(posterior.people)} ({data.num_frames} frames at {data.fps:g} fps, "
+        + ("with speech)" if data.has_speech else "no speech)"),
+        "bias (yaw, tilt) deg: " + "; ".join(f"{n} ({b[0]:+.2f}, {b[1]:+.2f})" for n, b in zip(posterior.people, bias)),
+        "cone width deg: " + "; ".join(f"{n} {w:.2f}" for n, w in zip(posterior.people, width))] + _coupling(posterior) + [
+        f"concurrences: {posterior.num_concurrences}; diagnostics ({posterior.method}): {stats}"] + [
+        f"predictive check: {n}'s gaze goes elsewhere in {o:.0%} of frames, the fit predicts {e:.0%} (a wrong mode?)"
+        for n, o, e, f in zip(posterior.people, *check) if f] + [
+        f"written to {' and '.join(written)}"])
+
+
+def _coupling(posterior) -> list[str]:
+    """Head pose only: each person's head-gaze coupling κ (yaw, tilt) with its 90% interval, and the head's lag."""
+    if "coupling" not in posterior.samples:
+        return []
+    kappa, low_high = posterior.samples["coupling"].mean(axis=0), posterior.interval("coupling")
+    lag = posterior.samples["head_lag"].mean(axis=0)
+    return ["head-gaze coupling (share of the gaze's turn the head makes; yaw, tilt; 90% interval): " + "; ".join(
+        f"{n} {k[0]:.2f} ({i[0, 0]:.2f}-{i[0, 1]:.2f}), {k[1]:.2f} ({i[1, 0]:.2f}-{i[1, 1]:.2f})"
+        for n, k, i in zip(posterior.people, kappa, low_high)),
+        "head lag s: " + "; ".join(f"{n} {t:.2f}" for n, t in zip(posterior.people, lag))]
