@@ -107,7 +107,8 @@ def summarise(done: dict) -> str:
              f"gazes at a person right: joint {right:.3f}   nearest person to the head ray {base:.3f}",
              f"ECE of looks_at over all ordered pairs: {ece:.3f}",
              f"kappa within 0.1: {np.mean(k_err <= 0.1):.2f} of {k_err.size} (yaw and tilt); 90% coverage "
-             f"{np.mean(k_cover):.2f}; median error {np.median(k_err):.3f}",
+             f"{np.mean(k_cover):.2f} (yaw {np.mean(k_cover[0::2]):.2f}, tilt {np.mean(k_cover[1::2]):.2f}); "
+             f"median error {np.median(k_err):.3f}",
              f"confidently wrong people: {wrong}; results {results}",
              f"seconds per fit: mean {np.mean([r['seconds'] for r in rows]):.0f}"]
     compared = [r for r in rows if "gaze_seconds" in r]

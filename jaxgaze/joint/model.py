@@ -40,7 +40,10 @@ head-to-gaze regression): ``κ (gaze_t − rest) = x_t − rest`` per axis with
 difference per second, ``τ`` the lag). Relative to the head the gaze is then
 ``g = λ (h − ref) + (1 + λ) τ ḣ + λ (ref − rest)`` with ``λ = 1/κ − 1`` and ``ref``
 each person's mean head direction: the constant last term is the bias ``b``, so the
-rest of the model reads ``g`` as it reads a measured gaze. The data are the head's
+rest of the model reads ``g`` as it reads a measured gaze, except that all angles are
+azimuths about the world's vertical and elevations: ``g + b`` scatters around a target's
+azimuth and elevation minus the head's (not its angles in the head's frame, which the
+head's roll and pitch would mix). The data are the head's
 angles, so each observed frame adds the log Jacobian of the map from head to gaze,
 ``Σ_axes log((1 + τ·fps) / κ)`` (``log(1/κ)`` after a gap: no rate there); without
 it a head that turns fully (``κ → 1``) looks best, as it packs the gazes tightest.
@@ -66,11 +69,14 @@ from jaxtyping import Array, Bool, Float, Int
 from jaxgaze.bias.looking import direction_to_gaze_angles, gaze_angles_to_direction, head_to_world
 from jaxgaze.calibration.posterior import calibration_log_likelihood
 from jaxgaze.cone import cone_direction_log_density
-from jaxgaze.geometry import unit
+from jaxgaze.geometry import unit, wrap_angle
 
 __all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "head_gaze_angles", "head_log_jacobian", "gaze_angles", "candidate_log_probabilities",
            "marginal_log_likelihood", "target_marginals", "target_log_prior", "model_params", "concurrence_locations", "eye_positions"]
 
+#: The model's sites on the positive half-line and in (0, 1): numpyro samples them as logs and logits.
+POSITIVE_SITES = ("cone_width", "head_lag")
+UNIT_SITES = ("stay", "calibration_outlier_share", "coupling")
 #: Frames per block of the target chain (it restarts from the prior at each block).
 BLOCK_FRAMES = 64
 # Impossible candidates (oneself, an absent person) enter the forward pass at this log
@@ -233,8 +239,8 @@ def _parts(params: dict, arrays: ModelArrays, prior: JointPrior):
     people_logit = jnp.where(others, params["alpha_person"] + params["speaker_effect"] * speaking[:, None, :], -jnp.inf)
     locations = params["locations"]
     if arrays.head_motion.shape[-1]:
-        return (people_logit, others) + _head_only_terms(gaze + params["bias"], to_people_head, eyes, R, locations,
-                                                         window, width, arrays.head_motion, prior)
+        return (people_logit, others) + _head_only_terms(gaze + params["bias"], eyes, R, locations, window, width,
+                                                         arrays.head_motion, prior)
     directions_head = gaze_angles_to_direction(gaze + params["bias"])  # (T, P, 3)
     people_lik = cone_direction_log_density(jnp.einsum("tik,tijk->tij", directions_head, to_people_head), width)
     directions = head_to_world(directions_head, R)  # (T, P, 3), world frame
@@ -253,20 +259,31 @@ def _angle_log_density(residual, width):
     return -0.5 * jnp.sum(jnp.square(residual), axis=-1) / jnp.square(width) - jnp.log(2.0 * math.pi * jnp.square(width))
 
 
-def _head_only_terms(gaze, to_people_head, eyes, R, locations, window, width, head_motion, prior: JointPrior):
-    """The likelihoods of head pose only, on the plane of gaze angles (head frame) rather than the sphere.
+def _head_only_terms(gaze, eyes, R, locations, window, width, head_motion, prior: JointPrior):
+    """The likelihoods of head pose only, on the plane of world angles (azimuth about the world's +z, elevation).
 
-    ``gaze`` ``(T, P, 2)`` is ``g + b``, which grows without bound as ``κ → 0``; a density on the
-    sphere is bounded below once angles wrap, and with the Jacobian of :func:`head_log_jacobian`
-    the likelihood would then grow without bound. Residuals to each target's angles are not wrapped.
-    Returns the people's, the concurrences' and elsewhere's log likelihoods, and the world-frame gaze
-    angles from the head's mean direction ``(T, P, 2)`` that a held glance elsewhere is scored by.
+    ``gaze`` ``(T, P, 2)`` is ``g + b``, the gaze's azimuth and elevation minus the head's,
+    which grows without bound as ``κ → 0``; a density on the sphere is bounded below once
+    angles wrap, and with the Jacobian of :func:`head_log_jacobian` the likelihood would
+    then grow without bound. Each target's angles are its direction's azimuth and elevation
+    minus the head's (the azimuth wrapped, the residual not): the coupling turns the head by
+    a share of the line of sight's azimuth and elevation, so the head's roll, or its pitch,
+    must not mix them, as the angles of the target in the head's own frame would.
+    Returns the people's, the concurrences' and elsewhere's log likelihoods, and the world
+    gaze angles from the head's mean direction ``(T, P, 2)`` that a held glance elsewhere is scored by.
     """
     T, P = gaze.shape[:2]
-    people_lik = _angle_log_density(gaze[:, :, None] - direction_to_gaze_angles(to_people_head), width)
+    head = direction_to_gaze_angles(R[..., :, 0])  # (T, P, 2): the head's azimuth and elevation, world
+
+    def from_head(direction, head):  # a target's angles minus the head's, on the plane of world angles
+        angles = direction_to_gaze_angles(direction) - head
+        return jnp.stack([wrap_angle(angles[..., 0]), angles[..., 1]], axis=-1)
+
+    to_people = from_head(unit(eyes[:, None, :, :] - eyes[:, :, None, :]), head[:, :, None])  # (T, gazer, target, 2)
+    people_lik = _angle_log_density(gaze[:, :, None] - to_people, width)
     if locations.shape[1]:
-        to_slots = jnp.einsum("tiba,tikb->tika", R, unit(locations[window][:, None] - eyes[:, :, None]))  # head frame
-        slot_lik = _angle_log_density(gaze[:, :, None] - direction_to_gaze_angles(to_slots), width)
+        to_slots = from_head(unit(locations[window][:, None] - eyes[:, :, None]), head[:, :, None])  # (T, P, K, 2)
+        slot_lik = _angle_log_density(gaze[:, :, None] - to_slots, width)
     else:
         slot_lik = jnp.zeros((T, P, 0), gaze.dtype)
     elsewhere = _angle_log_density(gaze, jnp.asarray(prior.elsewhere_spread, gaze.dtype))

@@ -37,7 +37,7 @@ import numpy as np
 from jax.scipy.special import logsumexp
 from scipy.ndimage import maximum_filter
 
-from jaxgaze.joint.model import JointPrior, ModelArrays, candidate_log_probabilities
+from jaxgaze.joint.model import POSITIVE_SITES, UNIT_SITES, JointPrior, ModelArrays, candidate_log_probabilities
 
 __all__ = ["Alternative", "ModeSearch", "bias_profile", "scan_offsets", "profile_rivals", "SCAN_RADIUS_DEG",
            "SCAN_STEP_DEG", "MIN_SEPARATION_DEG", "PROFILE_MARGIN", "MAX_RIVALS", "MAX_ROUNDS", "AMBIGUITY_MARGIN"]
@@ -161,10 +161,13 @@ def profile_rivals(profile: np.ndarray, offsets: np.ndarray, n: int, candidates:
 
 
 def constrained(unconstrained: dict) -> dict:
-    """The model's parameters from numpyro's unconstrained values (widths from logs, shares from logits)."""
+    """The model's parameters from numpyro's unconstrained values (widths, lags from logs; shares, couplings from
+    logits: :data:`~jaxgaze.joint.model.POSITIVE_SITES`, :data:`~jaxgaze.joint.model.UNIT_SITES`)."""
     out = dict(unconstrained)
-    out["cone_width"] = jnp.exp(unconstrained["cone_width"])
-    for site in ("stay", "calibration_outlier_share"):
+    for site in POSITIVE_SITES:
+        if site in out:
+            out[site] = jnp.exp(unconstrained[site])
+    for site in UNIT_SITES:
         if site in out:
             out[site] = jax.nn.sigmoid(unconstrained[site])
     return out
