@@ -37,7 +37,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                               help="infer gaze biases, cone widths, who looks at whom and the shared gaze "
                                    "concurrences of a group recording together (one gaze file per person)")
     a = p.add_argument
-    a("gaze", nargs="+", metavar="GAZE", help="one person's gaze and head pose per frame (see above)")
+    a("gaze", nargs="+", metavar="GAZE", help="gaze and head pose per frame: a file per person, or an OpenFace file "
+      "of a group filmed by one camera (see above)")
     a("--speech", default=None, metavar="SPEECH", help="who speaks when: RTTM (.rttm) or CSV (.csv: start, end, "
       "speaker; seconds); another extension is read as RTTM if it has SPEAKER lines, else as CSV")
     a("--speech-file-id", default=None, metavar="ID", help="the recording (2nd field) of an RTTM that holds several")

@@ -193,7 +193,7 @@ JOINT_FRAME_COLUMNS = ("frame", "time", "person", "present", "target", "probabil
 
 #: The inputs of ``jaxgaze joint`` in words (its help shows it).
 JOINT_INPUTS_FORMAT = """\
-GAZE is one file per person, each one of
+GAZE is one file per person (or per camera, see OpenFace), each one of
   * our gaze CSV (see 'jaxgaze bias -h'): frame, yaw, tilt (head frame,
     radians), qw, qx, qy, qz (R_world_from_head), ex, ey, ez (eye midpoint,
     world frame, metres), optional timestamp (seconds);
@@ -206,9 +206,10 @@ GAZE is one file per person, each one of
 With --head-only (no eye tracker) only the head pose is used: the gaze
 columns may be absent, and each person's head-gaze coupling is learnt.
 All files must share one world frame. A person is named by the file's stem
-unless --people is given (one name per person, in the order above). Frames are aligned on the union of the frame ids of
-all files; a person missing from a frame is absent there. Frame times are the
-timestamps when every file has them, else frame / --fps.
+unless --people is given (one name per person, in the order above). Frames
+are aligned on the union of the frame ids of all files; a person missing from
+a frame is absent there. Frame times are the timestamps when every file has
+them, else frame / --fps.
 
 --speech (RTTM or CSV of start, end, speaker; seconds, same clock) gives who
 speaks when; speakers are matched to the people by name (--speaker-map to map
