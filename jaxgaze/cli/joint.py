@@ -168,7 +168,7 @@ def run(args) -> int:
             warnings.simplefilter("always")
             with unit_rule(args, lambda what: _file_of(gaze, people, what), gaze.frames):
                 data = joint_data(gaze.eye_positions, gaze.R_world_from_head, None if args.head_only else
-                                  gaze.gaze_angles, present=gaze.present,
+                                  gaze.gaze_angles, present=gaze.present, measurement_scale=gaze.measurement_scale,
                                   speaking=speaking, people=people, fps=fps, window_s=window_s)
         for note in dict.fromkeys(str(w.message) for w in caught):
             warn(note)

@@ -19,13 +19,16 @@ from jaxgaze.io.poses import check_quaternion
 from jaxgaze.io.text import InputFileError, read_csv_table, read_text
 from jaxgaze.poses import quaternions_to_matrices
 
-__all__ = ["GAZE_COLUMNS", "TARGET_COLUMNS", "GazeFileError", "GazeTrack", "is_openface_csv",
+__all__ = ["GAZE_COLUMNS", "ANGLE_SD_COLUMN", "TARGET_COLUMNS", "GazeFileError", "GazeTrack", "is_openface_csv",
            "read_gaze", "read_gaze_csv", "read_openface_gaze", "openface_gaze_track", "read_targets_csv", "parse_point", "REFERENCE_AXES"]
 
 #: Required columns of our gaze CSV, one row per frame: ``yaw, tilt`` the estimated gaze in the head
 #: frame (radians, uncorrected), ``q`` the unit quaternion (w, x, y, z) of R_world_from_head, ``e`` the
 #: eye midpoint (world, metres). Optional: ``timestamp`` (seconds) and :data:`TARGET_COLUMNS`.
 GAZE_COLUMNS = ("frame", "yaw", "tilt", "qw", "qx", "qy", "qz", "ex", "ey", "ez")
+#: Optional column of our gaze CSV: the per-frame sd of the angles (radians, in [0, 0.5]): the gaze estimator's, or
+#: for head pose only the head tracker's, where the tool reports one (the joint model's ``measurement_scale``).
+ANGLE_SD_COLUMN = "angle_sd"
 #: Target position columns (metres): the partner's eye midpoint, in a gaze CSV or, with ``frame``, a targets CSV.
 TARGET_COLUMNS = ("tx", "ty", "tz")
 #: The frames of reference of a :class:`GazeTrack` (and of its targets), with their axes.
@@ -45,7 +48,8 @@ class GazeTrack(NamedTuple):
     ``R_world_from_head (T, 3, 3)`` (``R_camera_from_head`` for OpenFace); ``eye (T, 3)``
     metres; ``target (T, 3)`` or ``None``; ``lines (T,)`` each frame's line in the file
     (``None`` for OpenFace); ``dropped`` OpenFace's dropped frames per reason;
-    ``reference`` ``"world"`` or ``"camera"``.
+    ``reference`` ``"world"`` or ``"camera"``; ``angle_sd (T,)`` the per-frame sd of the gaze angles (of the
+    head's, for head pose only; radians) where the file gives one (:data:`ANGLE_SD_COLUMN`), else ``None``.
     """
 
     format: str
@@ -58,6 +62,7 @@ class GazeTrack(NamedTuple):
     lines: Optional[np.ndarray]
     dropped: dict
     reference: str
+    angle_sd: Optional[np.ndarray] = None
 
     @property
     def timestamp_rate(self) -> Optional[float]:
@@ -119,7 +124,8 @@ def read_gaze_csv(path, *, with_gaze: bool = True) -> GazeTrack:
     (or the pose readers' error for a quaternion) naming the file and line.
     """
     required = GAZE_COLUMNS if with_gaze else tuple(c for c in GAZE_COLUMNS if c not in ("yaw", "tilt"))
-    table = read_csv_table(path, required, ("timestamp",) + TARGET_COLUMNS, error=GazeFileError, what="gaze")
+    table = read_csv_table(path, required, ("timestamp", ANGLE_SD_COLUMN) + TARGET_COLUMNS, error=GazeFileError,
+                           what="gaze")
     present = [c for c in TARGET_COLUMNS if table.has(c)]
     if present and len(present) < len(TARGET_COLUMNS):
         missing = [c for c in TARGET_COLUMNS if c not in present]
@@ -141,10 +147,14 @@ def read_gaze_csv(path, *, with_gaze: bool = True) -> GazeTrack:
         eye = [_number(row, c) for c in ("ex", "ey", "ez")]
         target = [_number(row, c) for c in present]
         time_s = _number(row, "timestamp") if timed else None
+        sd = _number(row, ANGLE_SD_COLUMN) if table.has(ANGLE_SD_COLUMN) else math.nan
+        if table.has(ANGLE_SD_COLUMN) and not 0.0 <= sd <= 0.5:
+            raise row.error(f"column '{ANGLE_SD_COLUMN}' must be an sd in radians within [0, 0.5], got "
+                            f"{row.cell(ANGLE_SD_COLUMN)} (degrees?)")
         first = seen.setdefault(frame, row.line)
         if first != row.line:
             raise row.error(f"duplicate frame {frame} (first on line {first})")
-        rows.append((frame, time_s, (yaw, tilt), q, eye, target, row.line))
+        rows.append((frame, time_s, (yaw, tilt), q, eye, target, row.line, sd))
     rows.sort(key=lambda r: r[0])
     frame = np.array([r[0] for r in rows], dtype=np.int64)
     lines = np.array([r[6] for r in rows], dtype=np.int64)
@@ -157,7 +167,8 @@ def read_gaze_csv(path, *, with_gaze: bool = True) -> GazeTrack:
                      R_world_from_head=np.asarray(quaternions_to_matrices(q), dtype=np.float64),
                      eye=np.array([r[4] for r in rows], dtype=np.float64),
                      target=np.array([r[5] for r in rows], dtype=np.float64) if present else None,
-                     lines=lines, dropped={}, reference="world")
+                     lines=lines, dropped={}, reference="world",
+                     angle_sd=np.array([r[7] for r in rows]) if table.has(ANGLE_SD_COLUMN) else None)
 
 
 def read_openface_gaze(path, *, face_id: Optional[int] = None, min_confidence: float = 0.75) -> GazeTrack:

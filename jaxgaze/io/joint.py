@@ -42,7 +42,8 @@ class JointGaze(NamedTuple):
     (NaN, identity and NaN where a person is absent; NaN gaze throughout for head pose only); ``present (T, P)``;
     ``tracks`` the :class:`~jaxgaze.io.gaze.GazeTrack` of each person; ``paths`` the file of each person;
     ``people`` each person's default name: the file's stem, ``<stem>_<k>`` for the ``k``-th person of an
-    OpenFace file of several faces.
+    OpenFace file of several faces; ``measurement_scale (T, P)`` the per-frame sd of the angles (radians; 0 where
+    no file gives one: our CSV's ``angle_sd``), for :func:`~jaxgaze.joint.joint_data`.
     """
 
     frames: np.ndarray
@@ -54,6 +55,7 @@ class JointGaze(NamedTuple):
     tracks: tuple
     paths: tuple
     people: tuple
+    measurement_scale: np.ndarray
 
     @property
     def formats(self) -> tuple:
@@ -142,12 +144,15 @@ def read_joint_gaze(paths, *, min_confidence: float = 0.75, head_only: bool = Fa
     eyes, gaze = np.full((T, P, 3), np.nan), np.full((T, P, 2), np.nan)
     R = np.broadcast_to(np.eye(3), (T, P, 3, 3)).copy()
     present = np.zeros((T, P), dtype=bool)
+    scale = np.zeros((T, P))
     for p, track in enumerate(tracks):
         rows = np.searchsorted(frames, track.frame)
         eyes[rows, p], R[rows, p], gaze[rows, p] = track.eye, track.R_world_from_head, track.gaze_angles
         present[rows, p] = True
+        if track.angle_sd is not None:
+            scale[rows, p] = track.angle_sd
     gaze = JointGaze(frames, _aligned_time(tracks, owners, frames), eyes, R, gaze, present, tuple(tracks),
-                     tuple(owners), tuple(people))
+                     tuple(owners), tuple(people), scale)
     if gaze.some_timed:
         warnings.warn("not every gaze file has timestamps: they are ignored and frame f is at f / fps seconds",
                       stacklevel=2)
@@ -196,7 +201,8 @@ JOINT_INPUTS_FORMAT = """\
 GAZE is one file per person (or per camera, see OpenFace), each one of
   * our gaze CSV (see 'jaxgaze bias -h'): frame, yaw, tilt (head frame,
     radians), qw, qx, qy, qz (R_world_from_head), ex, ey, ez (eye midpoint,
-    world frame, metres), optional timestamp (seconds);
+    world frame, metres), optional timestamp (seconds) and angle_sd (the
+    per-frame sd of yaw and tilt, or with --head-only of the head pose; radians);
   * an OpenFace 2 CSV (--min-confidence): FeatureExtraction (one face), or
     FaceLandmarkVidMulti (a group filmed by one camera: one person per face,
     faces re-linked by head position, named <stem>_0, <stem>_1, ...; a note

@@ -300,6 +300,34 @@ def test_head_pose_only_files_need_no_gaze_columns(group, tmp_path):
         read_joint_gaze([tmp_path / "pose_only.csv"])
 
 
+def test_a_head_trackers_per_frame_sd_widens_the_head_only_likelihood(tmp_path, x64):
+    """Our gaze CSV's ``angle_sd`` (radians) becomes ``measurement_scale``; for head pose only it is the head's sd,
+    carried to the gaze as ``σ / κ``: a frame read with an sd scores as the model with that sd does."""
+    header = ["frame", "qw", "qx", "qy", "qz", "ex", "ey", "ez", "angle_sd"]
+    quarter = [math.cos(math.pi / 4), 0, 0, math.sin(math.pi / 4)]  # ben faces +y, towards ann
+    for name, eye, q, sd in (("ann", (0.0, 1.0, 1.2), (0, 0, 0, 1), (0.02, 0.0)), ("ben", (0.0, 0.0, 1.2), quarter,
+                                                                                  (0.01, 0.03))):
+        rows = [header] + [[f, *q, *eye, sd[f]] for f in (0, 1)]
+        (tmp_path / f"{name}.csv").write_text("\n".join(",".join(map(str, r)) for r in rows) + "\n")
+    read = read_joint_gaze([tmp_path / "ann.csv", tmp_path / "ben.csv"], head_only=True)
+    np.testing.assert_allclose(read.measurement_scale, [[0.02, 0.01], [0.0, 0.03]])
+    data = joint_data(read.eye_positions, read.R_world_from_head, None, present=read.present,
+                      measurement_scale=read.measurement_scale, fps=5.0)
+    params = {"bias": np.zeros((2, 2)), "cone_width": np.full(2, 0.05), "alpha_person": 0.0, "alpha_object": 0.0,
+              "speaker_effect": 0.0, "stay": 0.5, "locations": np.zeros((1, 0, 3)),
+              "coupling": np.full((2, 2), 0.5), "head_lag": np.full(2, 0.1)}
+    arrays = _arrays(data, np.zeros((1, 0, 3)), jnp.float64)
+    model = float(jnp.sum(marginal_log_likelihood(params, arrays)))
+    assert model == pytest.approx(sum(_brute_force(data, params, i) for i in range(2)), rel=1e-9)
+    without = float(jnp.sum(marginal_log_likelihood(params, arrays._replace(
+        measurement_scale=jnp.zeros_like(arrays.measurement_scale)))))
+    assert abs(model - without) > 0.1
+    rows = [header, [0, 1, 0, 0, 0, 0.0, 0.0, 1.2, 3.0]]  # degrees
+    (tmp_path / "deg.csv").write_text("\n".join(",".join(map(str, r)) for r in rows) + "\n")
+    with pytest.raises(GazeFileError, match="angle_sd' must be an sd in radians"):
+        read_joint_gaze([tmp_path / "deg.csv"], head_only=True)
+
+
 def test_the_first_descent_keeps_the_profiles_couplings(group):
     """Free in the descent with independent frames, a κ climbed into a rival mode (0.41 → 0.73, the bias 16° off, in
     a 6-person scene of the experiment); the start's couplings and lags are held there, the biases move."""
