@@ -9,6 +9,7 @@ import numpy as np
 
 
 def summary(posterior, data, written) -> str:
+    """The lines ``jaxgaze joint`` prints after writing ``written`` (the output paths)."""
     bias, width = (np.asarray(a) * (180.0 / math.pi) for a in (posterior.bias, posterior.cone_width))
     stats = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in posterior.sampler.diagnostics._asdict().items())
     check = (posterior.predictive_check[k] for k in ("elsewhere_observed", "elsewhere_predicted", "flagged"))

@@ -294,8 +294,8 @@ def _read_tracks(path, min_confidence: float, face_id: Optional[int], *, with_ga
     if not math.isfinite(min_confidence):
         raise ValueError(f"read_openface: min_confidence must be finite, got {min_confidence}")
     table = read_csv_table(
-        path, OPENFACE_COLUMNS if with_gaze else OPENFACE_COLUMNS[:4] + _GAZE_POSE[2:], ("face_id",), error=OpenFaceFileError, what="OpenFace", lower=False,
-        hint=_missing_columns_hint,
+        path, OPENFACE_COLUMNS if with_gaze else OPENFACE_COLUMNS[:4] + _GAZE_POSE[2:], ("face_id",),
+        error=OpenFaceFileError, what="OpenFace", lower=False, hint=_missing_columns_hint,
         empty="empty file: expected an OpenFace CSV header (frame, face_id, timestamp, ...)",
     )
     gaze = _GAZE_POSE[:2] if with_gaze else ()
