@@ -25,17 +25,27 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     parser.add_argument("--from", dest="tool", required=True, choices=sorted(GAZE_TOOLS), metavar="TOOL",
                         help="the tool that wrote the inputs: " + ", ".join(GAZE_TOOLS))
-    parser.add_argument("inputs", nargs="+", metavar="IN", help="the tool's output files (Aria: MPS folders)")
+    parser.add_argument("inputs", nargs="+", metavar="IN",
+                        help="the tool's output files (aria: wearer folders as downloaded, or their gaze CSVs)")
     add_output(parser, "--out", required=True, metavar="OUT.csv", help="output rays CSV (replaced only on success)")
     parser.add_argument("--camera-poses", nargs="+", default=None, metavar="POSES",
                         help="the camera's poses in the world: a COLMAP images.txt or a pose CSV (frame, qw, qx, "
                              "qy, qz, cx, cy, cz); one pose serves every frame. Several pupil exports: one POSES "
                              "per IN, in order, each placing that wearer's scene camera")
     parser.add_argument("--fps", type=positive_float, default=None, metavar="F",
-                        help="frame rate of the time grid for tools with timestamps only (aria: 10, pupil/Neon: 30)")
+                        help="frame rate of the time grid for tools with timestamps only (aria: default the files' "
+                             "own rate, each sample its own frame; pupil/Neon: 30); samples dropped are counted")
     parser.add_argument("--people", default=None, metavar="A,B,...",
                         help="pupil and aria: one person name per IN, in order, as for 'jaxgaze joint' (default: "
                              "each file's name, or its recording folder's: ann for ann/exports/000/gaze_positions.csv)")
+    aria = parser.add_argument_group("aria")
+    aria.add_argument("--frame", choices=("world", "cpf"), default=None,
+                      help="world (default: the trajectory's world, z up) or cpf: each wearer's head frame")
+    aria.add_argument("--up", choices=("z", "y", "x", "-z", "-y", "-x"), default=None, metavar="AXIS",
+                      help="the trajectory world's up axis, turned onto +z (default: from its gravity columns, "
+                           "else z; the Aria Digital Twin's is y)")
+    aria.add_argument("--eye-gaze", choices=("general", "personalized"), default=None,
+                      help="which eye gaze CSV of a folder holding both")
     add_trust_units(parser)
     add_quiet(parser)
     declare_inputs(parser, "inputs", "camera_poses")
@@ -51,6 +61,11 @@ def _option_names(message: str) -> str:
                      r"one POSES for \1 wearers' files: pass --camera-poses with one POSES file per IN", message)
     message = re.sub(r"\bcamera= has (\d+) CameraPoses", r"--camera-poses has \1 POSES", message)
     message = re.sub(r"\bno camera=", "no --camera-poses", message)
+    message = message.replace("or the path of the one to read", "or the path of the one to read as IN")
+    message = re.sub(r"pass camera= with", "pass --camera-poses with", message)
+    message = re.sub(r"frame='(\w+)'", r"--frame \1", message)
+    message = re.sub(r"\bup='(-?\w)'", r"--up \1", message)
+    message = message.replace("eye_gaze='general' or 'personalized'", "--eye-gaze general or personalized")
     return re.sub(r"\bpersons=?", "--people", message)
 
 
@@ -61,8 +76,13 @@ def run(args) -> int:
     from jaxgaze.io.tools.common import MissingExtraError, check_camera_distances
     from jaxgaze.io.poses import read_poses
     from jaxgaze.io.rays import write_rays_csv
+    from jaxgaze.io.text import InputFileError
     from jaxgaze.rays import check_units
 
+    options = {name: value for name, value in (("frame", args.frame), ("up", args.up), ("eye_gaze", args.eye_gaze))
+               if value is not None}
+    if options and args.tool != "aria":
+        raise CommandError(f"--{next(iter(options)).replace('_', '-')} is an aria option, not one of {args.tool}")
     camera = None
     if args.camera_poses is not None:
         if len(args.camera_poses) > 1 and not GAZE_TOOLS[args.tool].camera_per_file:
@@ -74,12 +94,14 @@ def run(args) -> int:
         warnings.simplefilter("always")
         try:
             people = None if args.people is None else [name.strip() for name in args.people.split(",")]
-            recording = read_gaze_tool(args.tool, args.inputs, camera=camera, fps=args.fps, persons=people)
+            recording = read_gaze_tool(args.tool, args.inputs, camera=camera, fps=args.fps, persons=people, **options)
         except MissingExtraError as error:
             raise CommandError(str(error)) from None
         except ValueError as error:
             if hasattr(error, "path"):
-                raise
+                if _option_names(error.what) == error.what:
+                    raise
+                raise InputFileError(_option_names(error.what), error.path, error.line) from None
             raise CommandError(_option_names(str(error)), args.inputs[0]) from None
         # Units at the door of 'concurrences', checked here too; in the camera's frame also each eye's distance
         # from the camera, which catches millimetres with one face per frame.
@@ -91,5 +113,9 @@ def run(args) -> int:
         warn(note)
     with writing(args.out):
         rows = write_rays_csv(args.out, recording)
-    summary(args, f"{rows} ray(s) of {len(recording.frame_ids)} frame(s) from {args.tool} written to {args.out}")
+    kept = recording.sampling
+    kept = "" if kept is None else f" (kept {kept.kept} of {kept.read} samples at {kept.fps:.6g} fps)"
+    up = "" if recording.up in (None, "z") else f", the input's {recording.up} axis turned up to +z"
+    summary(args, f"{rows} ray(s) of {len(recording.frame_ids)} frame(s) from {args.tool}{kept}{up} written to "
+                  f"{args.out}")
     return 0

@@ -172,8 +172,11 @@ def test_aria_known_gaze_timestamp_matching_and_bandwidth():
 
 
 def test_aria_vergence_schema_matches_projectaria_tools():
+    with pytest.raises(InputFileError, match=r"aria_vergence: no trajectory .* world rays need one; .*frame='cpf'"):
+        aria.read_aria(DATA / "aria_vergence")  # no trajectory: world rays cannot be had, and it says so
     with pytest.warns(UserWarning, match="1 of 2 gaze rows have no usable"):
-        recording = aria.read_aria(DATA / "aria_vergence")  # no trajectory: the world is the CPF, our axes
+        recording = aria.read_aria(DATA / "aria_vergence", frame="cpf")  # the head frame, asked for: the CPF, our axes
+    assert recording.up == "z" and recording.sampling.dropped == 0
     _, direction, h = rows_of(recording, "aria_vergence")[0]
     # TestEyeGaze.cpp: computeDepthAndCombinedGazeDirection(−0.1264797, −0.07706982, −0.26359045) → yaw −0.10183712
     combined = aria.aria_gaze_to_direction(-0.10183712, -0.26359045)
@@ -245,7 +248,7 @@ def test_aria_bad_input_names_file_and_line(tmp_path):
     (folder / aria.TRAJECTORY_FILE).write_text(trajectory)
     with pytest.raises(InputFileError, match=r"closed_loop_trajectory\.csv, line 2: quaternion .* is not unit"):
         aria.read_aria(folder, T_device_cpf=np.eye(4))
-    with pytest.raises(InputFileError, match="no general_eye_gaze.csv"):
+    with pytest.raises(InputFileError, match=r"no eye gaze CSV \(general_eye_gaze\.csv, .*eyegaze\.csv"):
         aria.read_aria(tmp_path, T_device_cpf=np.eye(4))
 
 

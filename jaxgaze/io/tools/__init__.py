@@ -68,20 +68,24 @@ GAZE_TOOLS: dict[str, GazeTool] = {
                           read_mediapipe),
     "pupil": GazeTool("Pupil Core gaze_positions.csv export, or a Neon gaze.csv (azimuth [deg], elevation [deg])",
                       read_pupil_labs, wearer=True, timed=True, camera_per_file=True),
-    "aria": GazeTool("Project Aria MPS folders, one per wearer (general_eye_gaze.csv + closed_loop_trajectory.csv)",
+    "aria": GazeTool("Project Aria folders as downloaded, one per wearer: MPS (eye_gaze/ with general_eye_gaze.csv "
+                     "or its other names, slam/ or trajectory/ with closed_loop_trajectory.csv) or an Aria Digital "
+                     "Twin sequence (eyegaze.csv + aria_trajectory.csv)",
                      read_aria, wearer=True, timed=True, camera_frame=False),
     "openface": GazeTool("OpenFace 2 CSV, one face or several (FaceLandmarkVidMulti)", read_openface_rays),
 }
 
 
 def read_gaze_tool(tool: str, paths, *, camera: Optional[CameraPoses] = None,
-                   fps: Optional[float] = None, persons: Optional[Sequence[str]] = None) -> RayRecording:
+                   fps: Optional[float] = None, persons: Optional[Sequence[str]] = None, **options) -> RayRecording:
     """The world-frame rays of one tool's output files (``paths``: one or several, as the tool's reader takes).
 
     ``camera`` places a camera-based tool's camera (or a wearer's scene camera) in the world; ``fps`` is the
     frame rate of the time grid of the tools that have timestamps but no frames (Aria, Neon). A ``pupil`` file
     is read as Neon's export when its header names ``azimuth [deg]``. ``persons``: one name per file of a
     wearer tool (``GAZE_TOOLS[tool].wearer``; default :func:`~jaxgaze.io.tools.pupil.wearer_names`).
+    ``options``: the tool's own reader's keyword options, passed on (e.g. aria's ``T_device_cpf``, ``frame``,
+    ``up``, ``eye_gaze``: :func:`~jaxgaze.io.tools.aria.read_aria`).
     """
     if tool not in GAZE_TOOLS:
         raise ValueError(f"unknown gaze tool {tool!r}: choose from {', '.join(GAZE_TOOLS)}")
@@ -94,6 +98,6 @@ def read_gaze_tool(tool: str, paths, *, camera: Optional[CameraPoses] = None,
             wearer_tools = [name for name, other in GAZE_TOOLS.items() if other.wearer]
             raise ValueError(f"persons= names the wearers of {' and '.join(wearer_tools)} files; {tool} files name "
                              "their people in their rows")
-        return entry.reader(paths if len(paths) > 1 else paths[0], camera=camera)
+        return entry.reader(paths if len(paths) > 1 else paths[0], camera=camera, **options)
     timed = {"fps": fps} if entry.timed and fps is not None else {}
-    return entry.reader(paths, camera=camera, persons=persons, **timed)
+    return entry.reader(paths, camera=camera, persons=persons, **timed, **options)
