@@ -1,10 +1,23 @@
-"""Project Aria Machine Perception Services (MPS) → world-frame gaze rays, one folder per wearer.
+"""Project Aria (Machine Perception Services, Aria Digital Twin) → world-frame gaze rays, one folder per wearer.
 
-**Input.** Each wearer is a folder holding MPS's ``general_eye_gaze.csv`` and
-``closed_loop_trajectory.csv``, side by side or in MPS's own layout (``eye_gaze/`` and ``slam/``);
-a path may also name the gaze CSV itself. ``read_aria([wearer_a, wearer_b, …])`` puts every
-wearer's rays in the one world of their trajectories; person names are the folder names (or
-``persons``).
+**Input.** Each wearer is a folder as downloaded, or its gaze CSV; ``read_aria([wearer_a, wearer_b, …])``
+puts every wearer's rays in the one world of their trajectories; person names are the folder names (or
+``persons``). Layouts read:
+
+* the gaze CSV under any name Aria has shipped (:data:`GAZE_FILES`, ``MpsFileNames.h``): MPS's
+  ``general_eye_gaze.csv`` (earlier ``generalized_eye_gaze.csv``, legacy ``eyegaze.csv``) and
+  ``personalized_eye_gaze.csv`` (earlier ``calibrated_eye_gaze.csv``), in the folder or its
+  ``eye_gaze/``; the Aria Digital Twin (ADT) sequence's ``eyegaze.csv``. A folder holding two is an
+  error naming them (``eye_gaze="general"`` / ``"personalized"`` or the file's path chooses): which
+  model a user wants is theirs to say;
+* the trajectory: MPS's ``closed_loop_trajectory.csv`` beside the gaze CSV or under ``slam/`` (older
+  MPS: ``trajectory/``) of its folder or that folder's parent; else ADT's ``aria_trajectory.csv``
+  (MPS's columns, ``AriaDigitalTwinDataFileNames.h``) beside it, or for the gaze of an ADT
+  sequence's ``mps/`` folder (which has no trajectory), the sequence's.
+
+World rays without a trajectory are an :class:`InputFileError` naming what is missing, unless
+``camera`` gives the CPF's poses (one wearer); ``frame="cpf"`` asks for rays in each wearer's
+Central Pupil Frame (our axes), the head frame.
 
 **Gaze (CPF).** The eye gaze is in the Central Pupil Frame: origin between the eyes, X left, Y up,
 Z forward (projectaria_tools docs, "3D Coordinate Frame Conventions"). The direction of
@@ -18,9 +31,15 @@ tan pitch, 1)``, so yaw is positive to the wearer's left and pitch positive up. 
   and the eye origins ``t{x,y,z}_{left,right}_eye_cpf``. The combined yaw is
   ``computeDepthAndCombinedGazeDirection``'s ``atan(x/z)`` of the two rays' intersection, which is
   ``atan((tan left + tan right) / 2)``;
-* Gen2: a combined ``yaw_rads_cpf`` next to the per-eye columns, no bounds.
+* Gen2: a combined ``yaw_rads_cpf`` next to the per-eye columns, no bounds, no ``depth_m``.
 
-The ray's origin is the midpoint of the eye origins when the file has them, else the CPF origin.
+The ray's origin ``o`` is the midpoint of the eye origins when the file has them, else the CPF origin.
+
+**Depth.** ``depth_m`` (ADT: the ground-truth gaze depth; MPS Gen1: the vergence depth) places the
+point of regard at ``depth_m · d`` from the CPF origin (``getEyeGazePointAtDepth``; 0 or empty: not
+available). Along our ray that is ``depth = depth_m − o · d`` from ``o`` (``depth_m`` itself when
+``o`` is the CPF origin), kept as :attr:`RayRecording.depth` (NaN where absent) and invariant under
+the rigid maps below: the point of regard is ``origin + depth · d`` in the world too.
 
 **Bandwidth.** MPS gives each angle an interval ``[low, high]`` containing it; its level is not
 documented, and we read it as a central :data:`INTERVAL_COVERAGE` (80 %) interval of a normal
@@ -30,25 +49,29 @@ the two eyes' sds; and ``h = √((σ_yaw² + σ_pitch²) / 2)``, the per-axis sd
 same mean squared offset. Rows without bounds get :data:`DEFAULT_BANDWIDTH_ARIA`; widths beyond
 :data:`MAX_BANDWIDTH_ARIA` (blinks) are clipped to it, with a warning that counts them.
 
-**World.** ``x_world = T_world_device · T_device_cpf · x_cpf`` with ``T_world_device`` the
-trajectory's ``t{x,y,z}_world_device`` and Hamilton quaternion ``q{x,y,z,w}_world_device``
-(gravity-aligned world, z up: our world convention), interpolated to each gaze timestamp
-(translation linearly, rotation by slerp between the two nearest poses; a gaze sample outside
-the trajectory or in a gap longer than ``max_pose_gap_s`` is dropped, with a warning).
-``T_device_cpf`` comes from the device calibration (projectaria_tools
-``DeviceCalibration.get_transform_device_cpf()``; :func:`read_aria_device_cpf` reads it from a
-VRS file with the ``aria`` extra). Without it the reader uses the identity, i.e. takes the device
+**World.** ``x_world = R_up · T_world_device · T_device_cpf · x_cpf`` with ``T_world_device`` the
+trajectory's ``t{x,y,z}_world_device`` and Hamilton quaternion ``q{x,y,z,w}_world_device``,
+interpolated to each gaze timestamp (translation linearly, rotation by slerp between the two nearest
+poses; a sample at most :data:`POSE_EDGE_S` beyond the trajectory's ends takes the end pose; one
+further out, or in a gap longer than ``max_pose_gap_s``, is dropped and counted). ``R_up``
+(:func:`up_rotation`) turns the trajectory's up axis onto our +z: ``up`` defaults to the axis opposite
+the trajectory's ``gravity_{x,y,z}_world`` columns (MPS: ``(0, 0, −9.81)``, z up; ADT: ``(0, −9.81, 0)``,
+y up), and a given ``up`` that contradicts them is an error. ``T_device_cpf`` comes from the device
+calibration (projectaria_tools ``DeviceCalibration.get_transform_device_cpf()``; :func:`read_aria_device_cpf`
+reads it from a VRS file with the ``aria`` extra; :func:`aria_cad_device_cpf` gives its default for a
+Gen1 device from the CAD tables). Without it the reader uses the identity, i.e. takes the device
 frame (the left SLAM camera) as the CPF, and warns: directions are then off by that camera's
-mounting angle. A wearer folder without a trajectory gives rays in its own CPF (our axes), or in
-the world of ``camera`` (the CPF's poses, one wearer only).
+mounting angle.
 
 **Frames.** One time grid for all wearers: ``frame = round((t − start_ns) · fps / 1e9)``,
-``start_ns`` by default the earliest gaze sample, one sample per frame (the nearest to the frame's
-time). ``tracking_timestamp_us`` is each device's own clock, so several wearers are put on a
-shared clock through the trajectory's ``utc_timestamp_ns`` (``clock="utc"``, the default for
-several wearers: ``t = tracking · 1000 + median(utc − tracking · 1000)``); ``clock="device"``
-(the default for one) uses the device clock as it is. Trajectories of different ``graph_uid``
-are in different worlds, which draws a warning.
+``start_ns`` by default the earliest gaze sample, ``fps`` by default the highest native rate
+``1e9 / median Δt`` of the files (each sample its own frame); one sample per frame (the nearest to the
+frame's time). Dropped samples are counted per wearer in a warning and in ``RayRecording.sampling``.
+``tracking_timestamp_us`` is each device's own clock, so several wearers are put on a shared clock
+through the trajectory's ``utc_timestamp_ns`` (``clock="utc"``, the default for several wearers:
+``t = tracking · 1000 + median(utc − tracking · 1000)``); ``clock="device"`` (the default for one)
+uses the device clock as it is. Trajectories of different ``graph_uid`` are in different worlds,
+which draws a warning.
 """
 
 from __future__ import annotations
