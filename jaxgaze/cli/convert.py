@@ -26,15 +26,17 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--from", dest="tool", required=True, choices=sorted(GAZE_TOOLS), metavar="TOOL",
                         help="the tool that wrote the inputs: " + ", ".join(GAZE_TOOLS))
     parser.add_argument("inputs", nargs="+", metavar="IN",
-                        help="the tool's output files (aria: wearer folders as downloaded, or their gaze CSVs)")
+                        help="the tool's output files (aria: wearer folders as downloaded, or their gaze CSVs; "
+                             "pupil: CSV exports or native Neon recording folders)")
     add_output(parser, "--out", required=True, metavar="OUT.csv", help="output rays CSV (replaced only on success)")
     parser.add_argument("--camera-poses", nargs="+", default=None, metavar="POSES",
                         help="the camera's poses in the world: a COLMAP images.txt or a pose CSV (frame, qw, qx, "
                              "qy, qz, cx, cy, cz); one pose serves every frame. Several pupil exports: one POSES "
                              "per IN, in order, each placing that wearer's scene camera")
     parser.add_argument("--fps", type=positive_float, default=None, metavar="F",
-                        help="frame rate of the time grid for tools with timestamps only (aria: default the files' "
-                             "own rate, each sample its own frame; pupil/Neon: 30); samples dropped are counted")
+                        help="frame rate of the time grid of the timed tools (aria, pupil, Neon): default the "
+                             "files' own rate, each sample its own frame; a rate puts wearers on one clock; samples "
+                             "dropped are counted on stderr")
     parser.add_argument("--people", default=None, metavar="A,B,...",
                         help="pupil and aria: one person name per IN, in order, as for 'jaxgaze joint' (default: "
                              "each file's name, or its recording folder's: ann for ann/exports/000/gaze_positions.csv)")

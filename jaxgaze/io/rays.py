@@ -33,9 +33,10 @@ _FLOAT32_MAX = 3.4028234e38
 
 class Sampling(NamedTuple):
     """How a reader of timestamped samples put them on frames: ``frame = round((t − start_ns) · fps / 1e9)``
-    (``t`` on the shared clock, ns). Of the ``read`` samples, ``kept`` became rays; the others had no
-    pose (``outside`` the trajectory or in a gap of it) or were ``merged``: another sample of the same
-    person lay nearer their frame's time."""
+    (``t`` on the shared clock, ns). Of the ``read`` samples, ``kept`` became rays; the others were
+    ``filtered`` by the reader's own rules (Pupil's confidence below ``min_confidence`` or no 3D gaze,
+    Neon's not worn or in a blink), had no pose (``outside`` the trajectory or in a gap of it) or were
+    ``merged``: another sample of the same person lay nearer their frame's time."""
 
     fps: float
     start_ns: int
@@ -43,6 +44,7 @@ class Sampling(NamedTuple):
     kept: int
     outside: int = 0
     merged: int = 0
+    filtered: int = 0
 
     @property
     def dropped(self) -> int:

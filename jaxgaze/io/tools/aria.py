@@ -84,10 +84,10 @@ from typing import Optional, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from jaxgaze.io.tools.common import bandwidth_from_mean_angular_error, camera_rays_to_world, require_extra
+from jaxgaze.io.tools.common import bandwidth_from_mean_angular_error, require_extra
 from jaxgaze.io.poses import check_quaternion
-from jaxgaze.io.tools.pupil import as_paths, frames_on_grid, person_rays, wearer_names
-from jaxgaze.io.rays import RayRecording, Sampling, stack_rays
+from jaxgaze.io.tools.pupil import TimedRays, as_paths, grid_fps, person_rays, rays_on_time_grid, wearer_names
+from jaxgaze.io.rays import RayRecording
 from jaxgaze.io.text import InputFileError, format_float, read_csv_table, write_csv_rows
 from jaxgaze.poses import CameraPoses
 
@@ -455,12 +455,6 @@ class _Trajectory:
         return _slerp(self.quaternions[lower], self.quaternions[upper], s), translations, covered
 
 
-def _native_fps(times_ns: np.ndarray) -> Optional[float]:
-    """``1e9 / median(Δt)`` of sorted sample times (ns): the file's own rate; None for one sample."""
-    steps = np.diff(np.asarray(times_ns, np.int64))
-    return 1e9 / float(np.median(steps)) if len(steps) else None
-
-
 def _choose_up(up: Optional[str], trajectories: dict) -> str:
     """The input world's up axis: ``up`` checked against the trajectories' gravity, or read from it."""
     found = {person: trajectory.up() for person, trajectory in trajectories.items()}
@@ -515,6 +509,7 @@ def read_aria(paths, *, camera: Optional[CameraPoses] = None, persons: Optional[
         raise ValueError(f"T_device_cpf has {len(transforms)} transforms for {len(paths)} wearers")
     transforms = [_as_transform(T, "T_device_cpf") for T in transforms]
     wearers, trajectories = [], {}
+    no_pose = f"without a pose (outside the trajectory, or in a gap over {max_pose_gap_s:g} s)"
     for path, person, T in zip(paths, names, transforms):
         gaze_path, trajectory_path = _wearer_files(path, eye_gaze)
         gaze_path, times_us, origins_cpf, directions_cpf, bandwidth, depth = _read_gaze(gaze_path)
@@ -527,7 +522,8 @@ def read_aria(paths, *, camera: Optional[CameraPoses] = None, persons: Optional[
                     + (" (several wearers share a world only through their trajectories)" if len(paths) > 1 else
                        "; pass camera= with the head's poses, or frame='cpf' for rays in the head frame"), path)
             origins, directions = origins_cpf @ R_OURS_FROM_CPF.T, directions_cpf @ R_OURS_FROM_CPF.T
-            wearers.append([gaze_path, person, 1000 * times_us, origins, directions, bandwidth, depth, camera, read, 0])
+            wearers.append(TimedRays(gaze_path, person, 1000 * times_us, origins, directions, bandwidth, depth, camera,
+                                     read, (("outside", 0, no_pose),)))
             continue
         if camera is not None:
             raise ValueError("camera= places a wearer without a trajectory; this wearer's world is its "
@@ -555,41 +551,17 @@ def read_aria(paths, *, camera: Optional[CameraPoses] = None, persons: Optional[
                                      "put on one clock; pass clock='device' if the recordings share a clock "
                                      "(e.g. Aria TimeSync)", trajectory.path)
             shared_ns = shared_ns + trajectory.utc_offset_ns
-        wearers.append([gaze_path, person, shared_ns, origins, directions, bandwidth[covered], depth[covered], None,
-                        read, int((~covered).sum())])
+        wearers.append(TimedRays(gaze_path, person, shared_ns, origins, directions, bandwidth[covered], depth[covered],
+                                 None, read, (("outside", int((~covered).sum()), no_pose),)))
     distinct = {tuple(t.graph_uids) for t in trajectories.values()}
     if len(distinct) > 1:
         warnings.warn("read_aria: the trajectories have different graph_uid ("
                       + "; ".join(f"{p}: {', '.join(t.graph_uids) or '?'}" for p, t in trajectories.items())
                       + "): their worlds differ unless MPS multi-SLAM aligned them", stacklevel=2)
     up = "z" if frame == "cpf" else _choose_up(up, trajectories)
-    R_up = up_rotation(up)
-    if start_ns is None:
-        start_ns = min(int(w[2].min()) for w in wearers)
-    if fps is None:
-        fps = max((r for r in (_native_fps(w[2]) for w in wearers) if r is not None), default=ARIA_FPS)
-    all_frames, all_persons, all_origins, all_directions, all_bandwidth, all_depth = [], [], [], [], [], []
-    read = kept = outside = merged = 0
-    for gaze_path, person, shared_ns, origins, directions, bandwidth, depth, pose, n_read, n_outside in wearers:
-        frames, keep = frames_on_grid(shared_ns, start_ns, fps)
-        n_merged = len(frames) - len(keep)
-        if n_outside or n_merged:
-            warnings.warn(f"{gaze_path}: dropped {n_outside + n_merged} of {n_read} gaze samples (kept {len(keep)}): "
-                          f"{n_outside} without a pose (outside the trajectory, or in a gap over {max_pose_gap_s:g} s), "
-                          f"{n_merged} sharing a frame of the {fps:g} fps grid with a nearer sample", stacklevel=2)
-        frames = frames[keep]
-        origins, directions = camera_rays_to_world(frames, origins[keep], directions[keep], pose, path=gaze_path)
-        all_frames += frames.tolist()
-        all_persons += [person] * len(frames)
-        all_origins.append(origins @ R_up.T)
-        all_directions.append(directions @ R_up.T)
-        all_bandwidth.append(bandwidth[keep])
-        all_depth.append(depth[keep])
-        read, kept, outside, merged = read + n_read, kept + len(keep), outside + n_outside, merged + n_merged
-    recording = stack_rays(all_frames, all_persons, np.concatenate(all_origins), np.concatenate(all_directions),
-                           np.concatenate(all_bandwidth), path=paths[0] if len(paths) == 1 else ", ".join(paths),
-                           depth=np.concatenate(all_depth))
-    return recording._replace(sampling=Sampling(float(fps), int(start_ns), read, kept, outside, merged), up=up)
+    recording = rays_on_time_grid(wearers, fps=grid_fps(fps, wearers, ARIA_FPS), start_ns=start_ns,
+                                  rotation=up_rotation(up), path=paths[0] if len(paths) == 1 else ", ".join(paths))
+    return recording._replace(up=up)
 
 
 # ---------------------------------------------------------------------------
