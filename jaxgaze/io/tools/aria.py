@@ -76,6 +76,7 @@ which draws a warning.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import warnings
@@ -88,7 +89,7 @@ from jaxgaze.io.tools.common import bandwidth_from_mean_angular_error, require_e
 from jaxgaze.io.poses import check_quaternion
 from jaxgaze.io.tools.pupil import TimedRays, as_paths, grid_fps, person_rays, rays_on_time_grid, wearer_names
 from jaxgaze.io.rays import RayRecording
-from jaxgaze.io.text import InputFileError, format_float, read_csv_table, write_csv_rows
+from jaxgaze.io.text import InputFileError, format_float, read_csv_table, read_text, write_csv_rows
 from jaxgaze.poses import CameraPoses
 
 __all__ = [
@@ -111,6 +112,7 @@ __all__ = [
     "read_aria",
     "write_aria",
     "read_aria_device_cpf",
+    "read_device_calibration",
     "aria_cad_device_cpf",
     "up_rotation",
 ]
@@ -656,3 +658,39 @@ def read_aria_device_cpf(vrs_path) -> np.ndarray:
     if provider is None:
         raise InputFileError("projectaria-tools cannot open this VRS file", vrs_path)
     return np.asarray(provider.get_device_calibration().get_transform_device_cpf().to_matrix(), dtype=np.float64)
+
+
+def read_device_calibration(path) -> np.ndarray:
+    """A device calibration's 4×4 ``T_device_cpf`` from a file: a recording's ``.vrs`` (through
+    :func:`read_aria_device_cpf`, the ``aria`` extra), a ``.json`` holding the matrix (a 4×4 list of rows,
+    or an object with one such list, e.g. ``{"T_device_cpf": [[...], ...]}``), or text: 16 numbers, four
+    rows of four, separated by spaces, tabs or commas (``#`` starts a comment). Anything else, or a
+    matrix that is not a rigid transform, is an :class:`InputFileError` naming the formats."""
+    path = os.fspath(path)
+    expected = ("expected a .vrs recording, a JSON 4×4 matrix (a list of 4 rows, or {\"T_device_cpf\": rows}) "
+                "or text of 4 rows of 4 numbers (T_device_cpf, metres)")
+    if path.lower().endswith(".vrs"):
+        return read_aria_device_cpf(path)
+    text = read_text(path)
+    if path.lower().endswith(".json"):
+        try:
+            value = json.loads(text)
+        except json.JSONDecodeError as error:
+            raise InputFileError(f"not JSON ({error.msg}): {expected}", path, error.lineno) from None
+        if isinstance(value, dict):
+            matrices = [v for v in value.values() if isinstance(v, list)]
+            value = matrices[0] if len(matrices) == 1 else None
+    else:
+        rows = [line.split("#", 1)[0].replace(",", " ").split() for line in text.splitlines()]
+        value = [row for row in rows if row]
+    try:
+        matrix = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        matrix = None
+    if matrix is None or matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
+        raise InputFileError(f"no 4×4 matrix of numbers: {expected}", path)
+    try:
+        return _as_transform(matrix, "T_device_cpf")
+    except ValueError:
+        raise InputFileError("the 4×4 matrix is not a rigid transform (an orthonormal rotation of determinant 1 "
+                             "and a translation, last row 0 0 0 1)", path) from None

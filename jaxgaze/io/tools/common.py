@@ -22,7 +22,7 @@ import numpy as np
 from jaxgaze.io.rays import RayRecording, stack_rays
 from jaxgaze.io.text import InputFileError
 from jaxgaze.poses import CameraPoses, as_camera_poses
-from jaxgaze.rays import check_bandwidth, check_distance
+from jaxgaze.rays import GazeRays, check_bandwidth, check_distance
 
 __all__ = [
     "check_camera_distances",
@@ -30,6 +30,7 @@ __all__ = [
     "require_extra",
     "bandwidth_from_mean_angular_error",
     "tool_bandwidth",
+    "with_bandwidth",
     "camera_rays_to_world",
     "world_rays_to_camera",
     "rays_from_camera",
@@ -67,6 +68,13 @@ def tool_bandwidth(value, who: str) -> float:
         raise ValueError(f"{who}: bandwidth must be positive (radians), got {h:g}")
     check_bandwidth(h, f"{who}: bandwidth")
     return h
+
+
+def with_bandwidth(recording: RayRecording, bandwidth: float) -> RayRecording:
+    """``recording`` with every ray's bandwidth ``h`` set to ``bandwidth`` (radians; padding too)."""
+    rays = recording.rays
+    h = np.full_like(np.asarray(rays.bandwidth), float(bandwidth))
+    return recording._replace(rays=GazeRays(rays.origins, rays.directions, h, rays.mask))
 
 
 def _poses_of_frames(camera: CameraPoses, frames: np.ndarray, path) -> tuple[np.ndarray, np.ndarray]:
