@@ -254,7 +254,7 @@ def test_convert_adt_folder_writes_the_readers_rays_with_depth(tmp_path, capsys)
     assert status == 0, err
     assert "kept 6 of 6 samples at 30.0048 fps), the input's y axis turned up to +z" in err.splitlines()[-1]
     written = read_rays_csv(tmp_path / "rays.csv")
-    expected = quiet_read(ADT)  # the command has no calibration option: both take the identity, with a warning
+    expected = quiet_read(ADT)  # no --device-calibration: both take the identity, with a warning
     assert written.frame_ids == expected.frame_ids
     np.testing.assert_allclose(np.asarray(written.rays.origins), np.asarray(expected.rays.origins), atol=1e-6)
     np.testing.assert_allclose(np.asarray(written.rays.directions), np.asarray(expected.rays.directions), atol=1e-6)
