@@ -2,7 +2,9 @@
 
 Rays are in the world frame: origin ``(ox, oy, oz)`` the centre of the eyes (metres),
 direction ``(dx, dy, dz)`` (any length, normalised on reading), and optionally the
-bandwidth ``h`` (radians). Errors raise :class:`~jaxgaze.io.text.InputFileError`
+bandwidth ``h`` (radians) and the ``depth`` of the point of regard (metres from the origin along
+the unit direction, ``origin + depth · direction``; an empty cell where the tool gave none, as
+Aria's ``depth_m``). Errors raise :class:`~jaxgaze.io.text.InputFileError`
 (``path, line N: what``); writers are atomic.
 """
 
@@ -16,9 +18,10 @@ import numpy as np
 from jaxgaze.io.text import InputFileError, atomic_path, csv_writer, format_float, read_csv_table
 from jaxgaze.rays import GazeRays, check_bandwidth
 
-__all__ = ["CSV_COLUMNS", "DEFAULT_BANDWIDTH", "RayRecording", "read_rays_csv", "write_rays_csv", "stack_rays"]
+__all__ = ["CSV_COLUMNS", "DEFAULT_BANDWIDTH", "Sampling", "RayRecording", "read_rays_csv", "write_rays_csv",
+           "stack_rays"]
 
-#: Required columns of a rays CSV (a ``bandwidth`` column is optional).
+#: Required columns of a rays CSV (``bandwidth`` and ``depth`` columns are optional).
 CSV_COLUMNS = ("frame", "person", "ox", "oy", "oz", "dx", "dy", "dz")
 #: Bandwidth ``h`` (radians) of every ray of a rays CSV without a ``bandwidth`` column.
 DEFAULT_BANDWIDTH = 0.05
@@ -26,6 +29,27 @@ DEFAULT_BANDWIDTH = 0.05
 _MIN_DIRECTION_NORM = 1e-9
 _RECENTRE_DISTANCE = 1024.0  # metres, as jaxgaze.concurrence.recentre.RECENTRE_DISTANCE
 _FLOAT32_MAX = 3.4028234e38
+
+
+class Sampling(NamedTuple):
+    """How a reader of timestamped samples put them on frames: ``frame = round((t − start_ns) · fps / 1e9)``
+    (``t`` on the shared clock, ns). Of the ``read`` samples, ``kept`` became rays; the others were
+    ``filtered`` by the reader's own rules (Pupil's confidence below ``min_confidence`` or no 3D gaze,
+    Neon's not worn or in a blink), had no pose (``outside`` the trajectory or in a gap of it) or were
+    ``merged``: another sample of the same person lay nearer their frame's time."""
+
+    fps: float
+    start_ns: int
+    read: int
+    kept: int
+    outside: int = 0
+    merged: int = 0
+    filtered: int = 0
+
+    @property
+    def dropped(self) -> int:
+        """Samples read but not kept: ``read − kept``."""
+        return self.read - self.kept
 
 
 class RayRecording(NamedTuple):
@@ -37,25 +61,43 @@ class RayRecording(NamedTuple):
     the rays' origins are measured from: the eyes in the world are ``rays.origins + reference``
     (:meth:`world_origins`). :func:`stack_rays` sets it for recordings far from the world origin
     (docs/conventions.md, "Far from the origin"), and locations found from ``rays`` are relative to it.
+
+    ``depth`` (float64 ``(T, N)`` metres, or ``None``): the distance of each ray's point of regard from
+    its origin along its unit direction (:meth:`points_of_regard`), NaN where unknown and in padding.
+    ``sampling``: for readers of timestamped samples, the time grid and the count of samples kept
+    and dropped (:class:`Sampling`). ``up``: the axis of the input's world that was up and was turned
+    onto our +z (``"z"``: as read), for readers that know it.
     """
 
     frame_ids: list
     persons: list
     rays: GazeRays
     reference: Optional[np.ndarray] = None
+    depth: Optional[np.ndarray] = None
+    sampling: Optional[Sampling] = None
+    up: Optional[str] = None
 
     def world_origins(self) -> np.ndarray:
         """``(T, N, 3)`` float64 eyes in the world frame: ``rays.origins + reference``."""
         origins = np.asarray(self.rays.origins, dtype=np.float64)
         return origins if self.reference is None else origins + self.reference
 
+    def points_of_regard(self) -> np.ndarray:
+        """``(T, N, 3)`` float64 points of regard in the world frame: ``world_origins + depth · d / |d|``
+        (NaN where the depth is unknown; all NaN without ``depth``)."""
+        directions = np.asarray(self.rays.directions, dtype=np.float64)
+        directions = directions / np.linalg.norm(directions, axis=-1, keepdims=True)
+        depth = np.full(directions.shape[:-1], np.nan) if self.depth is None else np.asarray(self.depth, np.float64)
+        return self.world_origins() + depth[..., None] * directions
+
 
 def stack_rays(frames: Sequence[int], persons: Sequence[str], origins, directions, bandwidth, *,
-               path) -> RayRecording:
-    """One ray per row (frame, person, origin (3,), direction (3,), bandwidth) → a :class:`RayRecording`.
+               path, depth=None) -> RayRecording:
+    """One ray per row (frame, person, origin (3,), direction (3,), bandwidth, optional depth) → a
+    :class:`RayRecording`.
 
     Rows keep their order within a frame; frames are sorted; :meth:`GazeRays.from_rows`
-    pads them. Its ``ValueError`` becomes an :class:`InputFileError` naming ``path``.
+    pads them (``depth`` with NaN). Its ``ValueError`` becomes an :class:`InputFileError` naming ``path``.
     """
     if len(frames) == 0:
         raise InputFileError("no gaze rays", path)
@@ -74,7 +116,15 @@ def stack_rays(frames: Sequence[int], persons: Sequence[str], origins, direction
     except ValueError as error:
         raise InputFileError(str(error), path) from None
     frame_ids = [int(f) for f in frame_array]
-    return RayRecording(frame_ids, [[persons[i] for i in rows_of[f]] for f in frame_ids], rays, reference)
+    depth_grid = None
+    if depth is not None:
+        depth = np.asarray(depth, dtype=np.float64).reshape(-1)
+        if depth.shape[0] != len(frames):
+            raise ValueError(f"stack_rays: {depth.shape[0]} depths for {len(frames)} rays")
+        depth_grid = np.full(np.asarray(rays.mask).shape, np.nan)
+        for t, f in enumerate(frame_ids):
+            depth_grid[t, :len(rows_of[f])] = depth[rows_of[f]]
+    return RayRecording(frame_ids, [[persons[i] for i in rows_of[f]] for f in frame_ids], rays, reference, depth_grid)
 
 
 def _float32(row, column: str) -> float:
@@ -84,8 +134,19 @@ def _float32(row, column: str) -> float:
     return value
 
 
+def _depth(row) -> float:
+    """The ``depth`` cell: metres ≥ 0, NaN when empty."""
+    if not row.cell("depth"):
+        return math.nan
+    value = _float32(row, "depth")
+    if value < 0:
+        raise row.error(f"depth must be zero or more (metres along the ray), got {row.cell('depth')}")
+    return value
+
+
 def read_rays_csv(path, default_bandwidth: float = DEFAULT_BANDWIDTH) -> RayRecording:
-    """Read a CSV of primary gaze rays (columns :data:`CSV_COLUMNS`, optionally ``bandwidth``).
+    """Read a CSV of primary gaze rays (columns :data:`CSV_COLUMNS`, optionally ``bandwidth`` and
+    ``depth``: metres to the point of regard along the ray, an empty cell where unknown).
 
     Columns are in any order (case-insensitive); other columns are ignored, blank lines
     skipped. Rays without a ``bandwidth`` column get ``default_bandwidth``. Raises
@@ -94,9 +155,9 @@ def read_rays_csv(path, default_bandwidth: float = DEFAULT_BANDWIDTH) -> RayReco
     non-positive bandwidth or one of a radian or more (degrees?, :func:`~jaxgaze.rays.check_bandwidth`),
     a zero direction or a duplicate (frame, person).
     """
-    table = read_csv_table(path, CSV_COLUMNS, ("bandwidth",), empty="input is empty: expected a header row with "
+    table = read_csv_table(path, CSV_COLUMNS, ("bandwidth", "depth"), empty="input is empty: expected a header row with "
                            "columns " + ", ".join(CSV_COLUMNS), empty_at_end=True)
-    frames, persons, origins, directions, bandwidth = [], [], [], [], []
+    frames, persons, origins, directions, bandwidth, depth = [], [], [], [], [], []
     seen: dict[tuple[int, str], int] = {}
     for row in table.rows:
         frame = row.integer("frame")
@@ -122,24 +183,32 @@ def read_rays_csv(path, default_bandwidth: float = DEFAULT_BANDWIDTH) -> RayReco
         origins.append(origin)
         directions.append(direction)
         bandwidth.append(h)
-    return stack_rays(frames, persons, origins, directions, bandwidth, path=table.path)
+        if table.has("depth"):
+            depth.append(_depth(row))
+    return stack_rays(frames, persons, origins, directions, bandwidth, path=table.path,
+                      depth=depth if table.has("depth") else None)
 
 
 def write_rays_csv(path, recording: RayRecording) -> int:
-    """Write a :class:`RayRecording` as a rays CSV with a ``bandwidth`` column (atomically);
-    returns the number of rows. Padded slots are not written."""
+    """Write a :class:`RayRecording` as a rays CSV with a ``bandwidth`` column, and a ``depth`` column
+    when the recording has depths (empty where NaN), atomically; returns the number of rows. Padded
+    slots are not written."""
     mask = np.asarray(recording.rays.mask)
     origins, directions = np.asarray(recording.rays.origins), np.asarray(recording.rays.directions)
     if recording.reference is not None:  # float64 world coordinates; otherwise the float32 values as read
         origins = recording.world_origins()
     bandwidth = np.asarray(recording.rays.bandwidth)
+    depth = None if recording.depth is None else np.asarray(recording.depth, dtype=np.float64)
     rows = 0
     with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
         writer = csv_writer(handle)
-        writer.writerow(CSV_COLUMNS + ("bandwidth",))
+        writer.writerow(CSV_COLUMNS + ("bandwidth",) + (() if depth is None else ("depth",)))
         for t, (frame, persons) in enumerate(zip(recording.frame_ids, recording.persons)):
             for n in np.flatnonzero(mask[t]):
-                writer.writerow([int(frame), persons[n], *map(format_float, origins[t, n]), *map(format_float, directions[t, n]),
-                                 format_float(bandwidth[t, n])])
+                cells = [int(frame), persons[n], *map(format_float, origins[t, n]), *map(format_float, directions[t, n]),
+                         format_float(bandwidth[t, n])]
+                if depth is not None:
+                    cells.append(format_float(depth[t, n]) if np.isfinite(depth[t, n]) else "")
+                writer.writerow(cells)
                 rows += 1
     return rows

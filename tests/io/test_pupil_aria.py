@@ -12,7 +12,7 @@ import pytest
 
 from jaxgaze.io.tools import aria, pupil
 from jaxgaze.io.tools.common import MissingExtraError
-from jaxgaze.io.rays import stack_rays
+from jaxgaze.io.rays import Sampling, stack_rays
 from jaxgaze.io.text import InputFileError
 from jaxgaze.poses import camera_poses
 from jaxgaze.rays import GazeRays
@@ -45,17 +45,22 @@ def rotation_z(angle):
 
 
 def test_pupil_known_gaze_filtering_and_frames():
-    with pytest.warns(UserWarning, match=r"dropped 1 rows of confidence < 0.6, 1 rows without 3D gaze"):
+    # gaze_timestamp 1000.000, .008, .033, .066 (confidence 0.3), .070 (2D only), .100 s: steps 8, 25, 33, 4, 30 ms,
+    # median 25 ms, so the stream's own rate is 40 Hz; frames round((t − 1000 s) · 40) = 0, 0.32 → 0, 1.32 → 1, 4
+    with pytest.warns(UserWarning, match=r"pupil_gaze_positions\.csv: dropped 3 of 6 gaze samples \(kept 3\): 1 of "
+                                         r"confidence < 0\.6, 1 without 3D gaze \(2D gaze mapper\?\), 1 sharing a "
+                                         r"frame of the 40 fps grid"):
         recording = pupil.read_pupil(DATA / "pupil_gaze_positions.csv", persons=["ann"])
-    assert recording.frame_ids == [0, 1, 3]  # world 2 had only a low-confidence and a 2D row
+    assert recording.frame_ids == [0, 1, 4]
+    assert recording.sampling == Sampling(fps=40.0, start_ns=1000 * 10**9, read=6, kept=3, merged=1, filtered=2)
     rays = rows_of(recording, "ann")
     # OpenCV (x right, y down, z forward) mm → ours (x forward, y left, z up) m: (z, −x, −y) / 1000
     binocular_origin = np.array([-0.010, 0.010, -0.015])  # midpoint of (20, 15, −10) and (−40, 15, −10) mm
     np.testing.assert_allclose(rays[0][0], binocular_origin, atol=1e-9)
-    np.testing.assert_allclose(rays[0][1], AHEAD, atol=1e-9)  # the most confident of world 0 (0.95, not 0.80)
+    np.testing.assert_allclose(rays[0][1], AHEAD, atol=1e-9)  # the nearest to frame 0's time (0 ms, not 8 ms)
     np.testing.assert_allclose(rays[1][1], LEFT_10, atol=1e-9)  # normal (−sin 10°, 0, cos 10°): to the left
-    np.testing.assert_allclose(rays[3][0], [-0.010, 0.040, -0.015], atol=1e-9)  # monocular: eye 1's centre
-    np.testing.assert_allclose(rays[3][1], UP_10, atol=1e-9)  # normal (0, −sin 10°, cos 10°): up
+    np.testing.assert_allclose(rays[4][0], [-0.010, 0.040, -0.015], atol=1e-9)  # monocular: eye 1's centre
+    np.testing.assert_allclose(rays[4][1], UP_10, atol=1e-9)  # normal (0, −sin 10°, cos 10°): up
     assert all(h == pytest.approx(pupil.DEFAULT_BANDWIDTH_PUPIL) for _, _, h in rays.values())
 
 
@@ -63,9 +68,11 @@ def test_pupil_round_trip_and_camera_pose(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         first = pupil.read_pupil(DATA / "pupil_gaze_positions.csv", persons=["ann"])
-    pupil.write_pupil(tmp_path / "gaze_positions.csv", first)
-    again = pupil.read_pupil(tmp_path / "gaze_positions.csv", persons=["ann"])
+    pupil.write_pupil(tmp_path / "gaze_positions.csv", first)  # the times of the frames on first's 40 Hz grid
+    grid = {"fps": first.sampling.fps, "start_ns": first.sampling.start_ns}
+    again = pupil.read_pupil(tmp_path / "gaze_positions.csv", persons=["ann"], **grid)
     assert_same_rays(first, again)
+    assert again.sampling == Sampling(read=3, kept=3, **grid)
     # the same file seen through a scene camera turned 90° left and lifted 1.5 m
     pose = camera_poses(rotation_z(math.pi / 2).T, [0.0, 0.0, 1.5], [0])
     with warnings.catch_warnings():
@@ -73,6 +80,15 @@ def test_pupil_round_trip_and_camera_pose(tmp_path):
         placed = pupil.read_pupil(DATA / "pupil_gaze_positions.csv", persons=["ann"], camera=pose)
     np.testing.assert_allclose(rows_of(placed, "ann")[0][1], [0, 1, 0], atol=1e-9)  # ahead of the camera = world +y
     np.testing.assert_allclose(rows_of(placed, "ann")[0][0], [-0.010, -0.010, 1.485], atol=1e-9)
+    # one pose per scene frame: each datum is placed by the pose of its world_index (0, 1, 3 for grid frames
+    # 0, 1, 4), not of its frame on the time grid
+    poses = camera_poses(np.stack([rotation_z(a * math.pi / 2).T for a in range(4)]), np.zeros((4, 3)), [0, 1, 2, 3])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        per_frame = rows_of(pupil.read_pupil(DATA / "pupil_gaze_positions.csv", persons=["ann"], camera=poses), "ann")
+    np.testing.assert_allclose(per_frame[0][1], AHEAD, atol=1e-9)
+    np.testing.assert_allclose(per_frame[1][1], rotation_z(math.pi / 2) @ LEFT_10, atol=1e-9)
+    np.testing.assert_allclose(per_frame[4][1], rotation_z(3 * math.pi / 2) @ UP_10, atol=1e-9)
 
 
 def test_pupil_several_wearers_need_poses(tmp_path):
@@ -93,7 +109,7 @@ def test_pupil_bad_cell_names_file_and_line(tmp_path):
     with pytest.raises(InputFileError, match=r"bad\.csv, line 4: column 'confidence' is not a number"):
         pupil.read_pupil(tmp_path / "bad.csv")
     (tmp_path / "no3d.csv").write_text("world_index,confidence\n0,1.0\n")
-    with pytest.raises(InputFileError, match=r"no3d\.csv, line 1: missing columns 'gaze_point_3d_x'"):
+    with pytest.raises(InputFileError, match=r"no3d\.csv, line 1: missing columns 'gaze_timestamp', 'gaze_point_3d_x'"):
         pupil.read_pupil(tmp_path / "no3d.csv")
 
 
@@ -111,9 +127,14 @@ def cart_to_spherical(points_opencv):
 
 
 def test_neon_known_gaze_and_published_formula():
-    with pytest.warns(UserWarning, match=r"dropped 1 samples not worn \(worn = 0\), 1 samples in a blink"):
+    # times 0, 5, 33.3, 66.7, 100, 133.3 ms: the stream's own rate is 30 Hz (median step 33.3 ms); the 5 ms
+    # sample shares frame 0 with the 0 ms one
+    with pytest.warns(UserWarning, match=r"dropped 3 of 6 gaze samples \(kept 3\): 1 not worn \(worn = 0\), 1 in a "
+                                         r"blink, 1 sharing a frame of the 30 fps grid"):
         recording = pupil.read_neon(DATA / "neon_gaze.csv")
     assert recording.frame_ids == [0, 1, 2] and recording.persons[0] == ["neon_gaze"]  # the file names the wearer
+    s = recording.sampling
+    assert s.fps == pytest.approx(30.0, rel=1e-7) and (s.read, s.kept, s.filtered, s.merged, s.dropped) == (6, 3, 2, 1, 3)
     rays = rows_of(recording, "neon_gaze")
     np.testing.assert_allclose(rays[0][1], AHEAD, atol=1e-12)  # the sample nearest frame 0's time
     np.testing.assert_allclose(rays[1][1], LEFT_10, atol=1e-12)  # azimuth −10°: positive azimuth is right
@@ -133,8 +154,8 @@ def test_neon_round_trip(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         first = pupil.read_neon(DATA / "neon_gaze.csv", persons=["ben"], start_ns=0)
-    pupil.write_neon(tmp_path / "gaze.csv", first)
-    again = pupil.read_neon(tmp_path / "gaze.csv", persons=["ben"], start_ns=0)
+    pupil.write_neon(tmp_path / "gaze.csv", first)  # on first's grid (its sampling)
+    again = pupil.read_neon(tmp_path / "gaze.csv", persons=["ben"], start_ns=0, fps=first.sampling.fps)
     assert_same_rays(first, again, atol=1e-9)
     moved = first._replace(rays=GazeRays(np.asarray(first.rays.origins) + 0.1, first.rays.directions,
                                          first.rays.bandwidth, first.rays.mask))
@@ -172,8 +193,11 @@ def test_aria_known_gaze_timestamp_matching_and_bandwidth():
 
 
 def test_aria_vergence_schema_matches_projectaria_tools():
+    with pytest.raises(InputFileError, match=r"aria_vergence: no trajectory .* world rays need one; .*frame='cpf'"):
+        aria.read_aria(DATA / "aria_vergence")  # no trajectory: world rays cannot be had, and it says so
     with pytest.warns(UserWarning, match="1 of 2 gaze rows have no usable"):
-        recording = aria.read_aria(DATA / "aria_vergence")  # no trajectory: the world is the CPF, our axes
+        recording = aria.read_aria(DATA / "aria_vergence", frame="cpf")  # the head frame, asked for: the CPF, our axes
+    assert recording.up == "z" and recording.sampling.dropped == 0
     _, direction, h = rows_of(recording, "aria_vergence")[0]
     # TestEyeGaze.cpp: computeDepthAndCombinedGazeDirection(−0.1264797, −0.07706982, −0.26359045) → yaw −0.10183712
     combined = aria.aria_gaze_to_direction(-0.10183712, -0.26359045)
@@ -245,7 +269,7 @@ def test_aria_bad_input_names_file_and_line(tmp_path):
     (folder / aria.TRAJECTORY_FILE).write_text(trajectory)
     with pytest.raises(InputFileError, match=r"closed_loop_trajectory\.csv, line 2: quaternion .* is not unit"):
         aria.read_aria(folder, T_device_cpf=np.eye(4))
-    with pytest.raises(InputFileError, match="no general_eye_gaze.csv"):
+    with pytest.raises(InputFileError, match=r"no eye gaze CSV \(general_eye_gaze\.csv, .*eyegaze\.csv"):
         aria.read_aria(tmp_path, T_device_cpf=np.eye(4))
 
 

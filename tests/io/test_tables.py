@@ -172,6 +172,33 @@ def test_rays_csv_round_trip(tmp_path):
     assert os.listdir(tmp_path) == ["rays.csv"]
 
 
+def test_rays_csv_depth_round_trip_and_points_of_regard(tmp_path):
+    """A ``depth`` (metres to the point of regard along the ray) is padded with NaN by stack_rays, written as a
+    column (empty where unknown) and read back; a recording without depths writes no such column."""
+    rec = stack_rays([3, 1, 3, 1, 3], ["a", "b", "b", "a", "c"], np.arange(15.0).reshape(5, 3),
+                     [[2, 0, 0], [0, 1, 0], [0, 0, 1], [1, 0, 0], [0, 3, 0]], 0.05, path="<t>",
+                     depth=[1.5, np.nan, 0.25, 2.0, 0.0])
+    np.testing.assert_array_equal(rec.depth, [[np.nan, 2.0, np.nan], [1.5, 0.25, 0.0]])  # row order; padding NaN
+    points = rec.points_of_regard()
+    np.testing.assert_allclose(points[1, 0], [0 + 1.5, 1, 2])  # origin (0, 1, 2) + 1.5 · (1, 0, 0)
+    np.testing.assert_allclose(points[0, 1], [9 + 2.0, 10, 11])
+    assert np.isnan(points[0, 0]).all() and np.isnan(points[0, 2]).all()
+    path = tmp_path / "rays.csv"
+    write_rays_csv(path, rec)
+    lines = path.read_text().splitlines()
+    assert lines[0].endswith(",bandwidth,depth") and lines[1].endswith(",") and lines[2].endswith(",0.05,2.0")
+    np.testing.assert_array_equal(read_rays_csv(path).depth, rec.depth)
+    write_rays_csv(path, _recording())
+    assert "depth" not in path.read_text().splitlines()[0] and read_rays_csv(path).depth is None
+    header = ",".join(CSV_COLUMNS) + ",depth\n"
+    _write(path, header + "1,a,0,0,1,1,0,0,-0.5\n")
+    with pytest.raises(InputFileError, match=r"line 2: depth must be zero or more"):
+        read_rays_csv(path)
+    _write(path, header + "1,a,0,0,1,1,0,0,far\n")
+    with pytest.raises(InputFileError, match=r"line 2: column 'depth' is not a number"):
+        read_rays_csv(path)
+
+
 def test_rays_csv_default_bandwidth_and_errors(tmp_path):
     header = ",".join(CSV_COLUMNS) + "\n"
     path = _write(tmp_path / "r.csv", header + "1,a,0,0,1,1,0,0\n")

@@ -19,10 +19,11 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from jaxgaze.geometry import R_OURS_FROM_OPENCV
 from jaxgaze.io.rays import RayRecording, stack_rays
 from jaxgaze.io.text import InputFileError
 from jaxgaze.poses import CameraPoses, as_camera_poses
-from jaxgaze.rays import check_bandwidth, check_distance
+from jaxgaze.rays import GazeRays, check_bandwidth, check_distance
 
 __all__ = [
     "check_camera_distances",
@@ -30,6 +31,10 @@ __all__ = [
     "require_extra",
     "bandwidth_from_mean_angular_error",
     "tool_bandwidth",
+    "with_bandwidth",
+    "eye_axes_problem",
+    "MAX_EYE_OFF_AXIS",
+    "MAX_EYE_ELEVATION",
     "camera_rays_to_world",
     "world_rays_to_camera",
     "rays_from_camera",
@@ -67,6 +72,59 @@ def tool_bandwidth(value, who: str) -> float:
         raise ValueError(f"{who}: bandwidth must be positive (radians), got {h:g}")
     check_bandwidth(h, f"{who}: bandwidth")
     return h
+
+
+#: An eye more than this far from the camera's optical axis (radians, 80°) is outside any real camera's view.
+MAX_EYE_OFF_AXIS = math.radians(80.0)
+#: An eye more than this far above or below the optical axis (radians, 60°) is outside any real camera's view.
+MAX_EYE_ELEVATION = math.radians(60.0)
+_EYE_AXES = {
+    "ours": ("our camera axes (+x forward along the optical axis, +y left, +z up)",
+             "they look like OpenCV axes (x right, y down, z forward), as in a dump CSV or Gaze360's person_eyes3d: "
+             "turn them into ours with eyes_opencv @ R_OURS_FROM_OPENCV.T"),
+    "opencv": ("OpenCV camera axes (x right, y down, z forward along the optical axis)",
+               "they look like our axes (+x forward, +y left, +z up): write them in OpenCV's, "
+               "eyes_ours @ R_OURS_FROM_OPENCV (z the depth)"),
+}
+
+
+def eye_axes_problem(eyes_camera, axes: str) -> Optional[tuple[int, str]]:
+    """The frame check at the door of the camera-based readers: ``eyes_camera (M, 3)`` in our camera axes,
+    read from input given in ``axes`` (``"ours"`` or ``"opencv"``). A real eye lies in front of the camera
+    (positive depth along its optical axis) and within its view; input in the other convention puts the
+    eyes behind the camera, or most of them beyond :data:`MAX_EYE_OFF_AXIS` from the axis or
+    :data:`MAX_EYE_ELEVATION` above or below it (a swap of the two conventions gave 60–74° errors).
+    Returns ``(row, message)`` of the first offending eye, naming the convention expected and the likely
+    swap, or None when the eyes are plausible: an eye behind the camera, or more than half the eyes out of
+    view."""
+    if axes not in _EYE_AXES:
+        raise ValueError(f"axes must be 'ours' or 'opencv', got {axes!r}")
+    eyes = np.asarray(eyes_camera, dtype=np.float64).reshape(-1, 3)
+    depth = eyes[:, 0]
+    off_axis = np.arctan2(np.linalg.norm(eyes[:, 1:], axis=1), depth)
+    elevation = np.arctan2(np.abs(eyes[:, 2]), np.abs(depth))
+    behind = ~(depth > 0)
+    out_of_view = (off_axis > MAX_EYE_OFF_AXIS) | (elevation > MAX_EYE_ELEVATION)
+    if behind.any():
+        i, what = int(np.argmax(behind)), "is not in front of the camera (its depth along the optical axis is not positive)"
+    elif len(eyes) and out_of_view.mean() > 0.5:
+        i = int(np.argmax(out_of_view))
+        what = (f"lies {math.degrees(off_axis[i]):.0f}° from the camera's optical axis and "
+                f"{math.degrees(elevation[i]):.0f}° above or below it, out of any camera's view, as "
+                f"{int(out_of_view.sum())} of the {len(eyes)} eyes do")
+    else:
+        return None
+    shown = eyes[i] if axes == "ours" else eyes[i] @ R_OURS_FROM_OPENCV
+    expected, swap = _EYE_AXES[axes]
+    return i, (f"the eye centre ({', '.join(f'{v:.3g}' for v in shown)}) {what}: eye positions are taken in "
+               f"{expected}; {swap}")
+
+
+def with_bandwidth(recording: RayRecording, bandwidth: float) -> RayRecording:
+    """``recording`` with every ray's bandwidth ``h`` set to ``bandwidth`` (radians; padding too)."""
+    rays = recording.rays
+    h = np.full_like(np.asarray(rays.bandwidth), float(bandwidth))
+    return recording._replace(rays=GazeRays(rays.origins, rays.directions, h, rays.mask))
 
 
 def _poses_of_frames(camera: CameraPoses, frames: np.ndarray, path) -> tuple[np.ndarray, np.ndarray]:

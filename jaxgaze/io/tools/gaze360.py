@@ -46,7 +46,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.tools.common import rays_from_camera, world_rays_to_camera
+from jaxgaze.io.tools.common import eye_axes_problem, rays_from_camera, world_rays_to_camera
 from jaxgaze.io.rays import RayRecording
 from jaxgaze.io.text import InputFileError, format_float, read_csv_table, write_csv_rows
 from jaxgaze.poses import CameraPoses
@@ -151,10 +151,12 @@ def _fail(message: str, path, lines, i: int) -> InputFileError:
     return InputFileError(message, path, int(lines[i]))
 
 
-def check_rows(columns: dict, eyes_camera: np.ndarray, path, lines, *, limits: dict) -> None:
+def check_rows(columns: dict, eyes_camera: np.ndarray, path, lines, *, limits: dict, axes: str) -> None:
     """Raise :class:`InputFileError` at the first bad row: a non-finite value, an angle outside
-    ``limits`` (``{name: bound}``: ``|angle| ≤ bound``, radians) or eyes not in front of the camera.
-    Shared with the L2CS-Net adapter."""
+    ``limits`` (``{name: bound}``: ``|angle| ≤ bound``, radians) or eyes (in our axes) implausible for
+    input given in ``axes`` (``"ours"``: the arrays; ``"opencv"``: the dump CSV): behind the camera, or
+    most of them out of its view (:func:`~jaxgaze.io.tools.common.eye_axes_problem`, the message naming
+    the convention and the swap). Shared with the L2CS-Net adapter."""
     for name, values in list(columns.items()) + [("eye centre", eyes_camera)]:
         bad = ~np.isfinite(values).reshape(len(values), -1).all(axis=-1)
         if bad.any():
@@ -165,10 +167,9 @@ def check_rows(columns: dict, eyes_camera: np.ndarray, path, lines, *, limits: d
             i = int(np.argmax(bad))
             raise _fail(f"{name} {columns[name][i]:g} is outside [−{bound:.4g}, {bound:.4g}]: the angles are "
                         "radians (degrees?)", path, lines, i)
-    behind = ~(eyes_camera[:, 0] > 0)
-    if behind.any():
-        raise _fail("the eye centre is not in front of the camera (OpenCV z, our x, must be positive)",
-                    path, lines, int(np.argmax(behind)))
+    problem = eye_axes_problem(eyes_camera, axes)
+    if problem is not None:
+        raise _fail(problem[1], path, lines, problem[0])
 
 
 def check_unique(frames, persons, places) -> None:
@@ -252,7 +253,7 @@ def gaze360_to_rays(yaw, pitch, var, eyes_camera, *, frames: Optional[Sequence[i
     eyes = _eyes(eyes_camera, len(yaw))
     frames, persons = default_rows(len(yaw), frames, persons)
     check_rows({"yaw": yaw, "pitch": pitch, "var": var}, eyes, _ARRAYS, None,
-               limits={"yaw": math.pi, "pitch": math.pi / 2})
+               limits={"yaw": math.pi, "pitch": math.pi / 2}, axes="ours")
     _check_var(var, _ARRAYS, None)
     check_unique(frames, persons, [(_ARRAYS, None)] * len(frames))
     h = _bandwidth_warned(var, _ARRAYS)
@@ -321,7 +322,7 @@ def read_gaze360(paths, *, camera: Optional[CameraPoses] = None) -> RayRecording
 
     def check(path, lines, rows):
         check_rows({"yaw": yaw[rows], "pitch": pitch[rows], "var": var[rows]}, eyes[rows], path, lines,
-                   limits={"yaw": math.pi, "pitch": math.pi / 2})
+                   limits={"yaw": math.pi, "pitch": math.pi / 2}, axes="opencv")
         _check_var(var[rows], path, lines)
 
     validate_by_file(places, check)

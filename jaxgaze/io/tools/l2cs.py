@@ -119,7 +119,7 @@ def l2cs_to_rays(pitch, yaw, eyes_camera, *, order: Sequence[str] = ("pitch", "y
     horizontal, vertical = _horizontal_vertical(pitch, yaw, order)
     bandwidth = tool_bandwidth(bandwidth, "l2cs")
     frames, persons = default_rows(len(pitch), frames, persons)
-    check_rows({"pitch": pitch, "yaw": yaw}, eyes, _ARRAYS, None, limits=_LIMITS)
+    check_rows({"pitch": pitch, "yaw": yaw}, eyes, _ARRAYS, None, limits=_LIMITS, axes="ours")
     check_unique(frames, persons, [(_ARRAYS, None)] * len(frames))
     return rays_from_camera(frames, persons, eyes, gaze360_directions(horizontal, vertical, eyes), bandwidth,
                             camera=camera, path=_ARRAYS)
@@ -140,7 +140,7 @@ def read_l2cs(paths, *, camera: Optional[CameraPoses] = None, order: Sequence[st
                                                        L2CS_COLUMNS[4:])
     pitch, yaw = numbers["pitch"], numbers["yaw"]
     validate_by_file(places, lambda path, lines, rows: check_rows(
-        {"pitch": pitch[rows], "yaw": yaw[rows]}, eyes[rows], path, lines, limits=_LIMITS))
+        {"pitch": pitch[rows], "yaw": yaw[rows]}, eyes[rows], path, lines, limits=_LIMITS, axes="opencv"))
     check_unique(frames, persons, places)
     horizontal, vertical = _horizontal_vertical(pitch, yaw, order)
     return rays_from_camera(frames, persons, eyes, gaze360_directions(horizontal, vertical, eyes), bandwidth,

@@ -18,10 +18,10 @@ datum leaves every 3D cell empty. The ray of a datum:
 
 Both are rotated into our camera axes by :data:`~jaxgaze.geometry.R_OURS_FROM_OPENCV`
 (+x forward, +y left, +z up). Rows with ``confidence`` below ``min_confidence`` (Pupil Player's
-own default ``min_data_confidence = 0.6``) and rows without 3D data are dropped, with a warning
-that counts them. The frame is ``world_index``, the scene video frame the exporter matched the
-datum to; a frame with several data (gaze runs at 120–200 Hz, the scene at 30 Hz) keeps the one of
-highest confidence (the first of equals). Pupil reports no per-datum angular uncertainty
+own default ``min_data_confidence = 0.6``) and rows without 3D data are dropped. Frames come from
+``gaze_timestamp`` (Pupil time, seconds) on the time grid of :func:`rays_on_time_grid`, by default at
+the stream's own rate, so every datum keeps its own frame; ``camera=`` poses are looked up by each
+datum's ``world_index`` (the scene video frame the exporter matched it to). Pupil reports no per-datum angular uncertainty
 (``confidence`` grades the pupil detection), so every ray gets :data:`DEFAULT_BANDWIDTH_PUPIL`.
 
 **Neon.** Pupil Cloud's timeseries export and Neon Player write ``gaze.csv`` (:data:`NEON_COLUMNS`):
@@ -33,11 +33,18 @@ the wearer's right). So the direction is
 ``= −azimuth`` and pitch ``= elevation`` (:func:`neon_angles_to_direction`). Neon gives no gaze
 origin: the ray starts at the scene camera (the module's centre, between the eyes). Samples with
 ``worn`` 0 or a ``blink id`` are dropped (counted in a warning). Timestamps are UTC nanoseconds,
-shared by several Neons, so frames come from one time grid: ``frame = round((t − start_ns) · fps
-/ 1e9)`` with ``start_ns`` the earliest sample of the files; a frame with several samples keeps
-the one nearest its time. Bandwidth :data:`DEFAULT_BANDWIDTH_NEON`. A native Neon recording
-folder needs ``pupil-labs-neon-recording`` (``pip install 'jaxgaze[neon]'``,
-:func:`read_neon_recording`); the CSV path does not.
+shared by several Neons, so frames come from one time grid. Bandwidth :data:`DEFAULT_BANDWIDTH_NEON`.
+A native Neon recording folder needs ``pupil-labs-neon-recording`` (``pip install 'jaxgaze[neon]'``,
+:func:`read_neon_recording`, which also drops the samples its ``worn`` and ``blinks`` streams mark);
+the CSV path does not.
+
+**Time grid and counts** (both tools, and :mod:`~jaxgaze.io.tools.aria`): ``frame = round((t − start_ns)
+· fps / 1e9)`` with ``start_ns`` the earliest kept sample of the files and ``fps`` by default the
+highest of the streams' own rates (``1e9 / median Δt``, :func:`native_fps`), so each sample keeps its
+own frame; a frame with several samples of one wearer keeps the one nearest its time. An explicit
+``fps`` resamples (several wearers on one clock). Every sample dropped, by the reader's filters or by
+the grid, is counted per wearer in one warning and in ``RayRecording.sampling``
+(:func:`rays_on_time_grid`).
 
 **Several wearers** are several files: the person names come from ``persons`` or, by default, from
 each file's name (its recording folder's when the file keeps the tool's own name: ``ann`` for
@@ -53,7 +60,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from typing import Mapping, Optional, Sequence, Union
+from typing import Mapping, NamedTuple, Optional, Sequence, Union
 
 import cv2
 import numpy as np
@@ -63,9 +70,10 @@ from jaxgaze.io.tools.common import (
     bandwidth_from_mean_angular_error,
     camera_rays_to_world,
     require_extra,
+    tool_bandwidth,
     world_rays_to_camera,
 )
-from jaxgaze.io.rays import RayRecording, stack_rays
+from jaxgaze.io.rays import RayRecording, Sampling, stack_rays
 from jaxgaze.io.text import InputFileError, format_float, read_csv_table, read_text, write_csv_rows
 from jaxgaze.poses import CameraPoses
 
@@ -112,11 +120,12 @@ DEFAULT_BANDWIDTH_NEON = bandwidth_from_mean_angular_error(math.radians(1.8))
 #: Neon's scene camera rate (Hz): the default frame grid of :func:`read_neon`.
 NEON_FPS = 30.0
 
-_PUPIL_REQUIRED = ("world_index", "confidence", "gaze_point_3d_x", "gaze_point_3d_y", "gaze_point_3d_z")
+_PUPIL_REQUIRED = ("gaze_timestamp", "world_index", "confidence", "gaze_point_3d_x", "gaze_point_3d_y", "gaze_point_3d_z")
 _EYE_COLUMNS = {eye: (tuple(f"eye_center{eye}_3d_{a}" for a in "xyz"), tuple(f"gaze_normal{eye}_{a}" for a in "xyz"))
                 for eye in (0, 1)}
 _NEON_REQUIRED = ("timestamp [ns]", "azimuth [deg]", "elevation [deg]")
 _MM = 1e-3
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 #: Half the distance between the eye centres the writer puts on either side of the origin (mm).
 _HALF_EYE_SEPARATION_MM = 31.5
 
@@ -212,12 +221,6 @@ def keep_one_per_frame(frames: np.ndarray, score: np.ndarray) -> np.ndarray:
     return np.sort(order[first])
 
 
-def _drop_warning(path, dropped: dict) -> None:
-    parts = [f"{count} {why}" for why, count in dropped.items() if count]
-    if parts:
-        warnings.warn(f"{path}: dropped " + ", ".join(parts), stacklevel=3)
-
-
 def _ours_from_opencv(vectors) -> np.ndarray:
     return np.asarray(vectors, dtype=np.float64) @ R_OURS_FROM_OPENCV.T
 
@@ -262,15 +265,20 @@ def _optional_vector(row, columns):
 
 
 def _pupil_table(path, min_confidence: float):
-    """Rows of one ``gaze_positions.csv`` kept as rays: frames, confidence, origins and directions in
-    our camera frame (metres, unit), after the confidence and 3D filters (one row per frame)."""
-    optional = tuple(c for eye in (0, 1) for group in _EYE_COLUMNS[eye] for c in group) + ("gaze_timestamp",)
+    """The rows of one ``gaze_positions.csv`` kept as rays: path, times (ns), ``world_index``, origins and
+    directions in our camera frame (metres, unit), the rows read and the drops of the confidence and
+    3D filters (:class:`TimedRays`)."""
+    optional = tuple(c for eye in (0, 1) for group in _EYE_COLUMNS[eye] for c in group)
     table = read_csv_table(path, _PUPIL_REQUIRED, optional,
                            hint="a Pupil Player gaze_positions.csv export with 3D gaze (columns "
                                 + ", ".join(_PUPIL_REQUIRED) + ")")
-    frames, confidence, origins, directions = [], [], [], []
-    dropped = {f"rows of confidence < {min_confidence:g}": 0, "rows without 3D gaze (2D gaze mapper?)": 0}
+    if not 0.0 <= min_confidence <= 1.0:
+        raise ValueError(f"min_confidence must be in [0, 1], got {min_confidence!r}")
+    times, frames, origins, directions, all_times = [], [], [], [], []
+    low, flat = 0, 0
     for row in table.rows:
+        time = row.number("gaze_timestamp")
+        all_times.append(time)
         c = row.number("confidence")
         if not 0.0 <= c <= 1.0:
             raise row.error(f"confidence must be in [0, 1], got {row.cell('confidence')}")
@@ -289,52 +297,52 @@ def _pupil_table(path, min_confidence: float):
                     raise row.error(f"gaze_normal{eye} has zero length")
                 normals.append(normal / length)
         if c < min_confidence:
-            dropped[f"rows of confidence < {min_confidence:g}"] += 1
+            low += 1
             continue
         if point is None and not normals:
-            dropped["rows without 3D gaze (2D gaze mapper?)"] += 1
+            flat += 1
             continue
         origin = np.mean(centers, axis=0) if centers else np.zeros(3)
         direction = np.sum(normals, axis=0) if normals else point - origin
         if np.linalg.norm(direction) == 0:
             raise row.error("the gaze direction has zero length (gaze point at the eye centre, or opposite normals)")
+        times.append(time)
         frames.append(frame)
-        confidence.append(c)
         origins.append(origin * _MM)
         directions.append(direction / np.linalg.norm(direction))
-    _drop_warning(table.path, dropped)
-    if not frames:
-        raise InputFileError(f"no gaze row with 3D gaze and confidence ≥ {min_confidence:g} among "
-                             f"{len(table.rows)} rows", table.path)
-    keep = keep_one_per_frame(frames, confidence)
-    return (table.path, np.asarray(frames, np.int64)[keep], _ours_from_opencv(np.asarray(origins)[keep]),
-            _ours_from_opencv(np.asarray(directions)[keep]))
+    drops = (("filtered", low, f"of confidence < {min_confidence:g}"),
+             ("filtered", flat, "without 3D gaze (2D gaze mapper?)"))
+    times_ns = np.rint(np.asarray(times, dtype=np.float64) * 1e9).astype(np.int64)  # Pupil time: seconds
+    rate = native_fps(np.rint(np.asarray(all_times, dtype=np.float64) * 1e9).astype(np.int64))
+    return (table.path, times_ns, np.asarray(frames, np.int64), _ours_from_opencv(np.asarray(origins).reshape(-1, 3)),
+            _ours_from_opencv(np.asarray(directions).reshape(-1, 3)), len(table.rows), drops, rate)
 
 
 def read_pupil(paths, *, camera: Cameras = None, persons: Optional[Sequence[str]] = None,
-               min_confidence: float = MIN_CONFIDENCE, bandwidth: float = DEFAULT_BANDWIDTH_PUPIL) -> RayRecording:
+               min_confidence: float = MIN_CONFIDENCE, bandwidth: float = DEFAULT_BANDWIDTH_PUPIL,
+               fps: Optional[float] = None, start_ns: Optional[int] = None) -> RayRecording:
     """Pupil Core ``gaze_positions.csv`` exports (one per wearer) → a world :class:`RayRecording`.
 
     Origin: the midpoint of the eye centres; direction: the mean unit gaze normal (module docstring),
     both from the scene camera's OpenCV axes (mm) to ours (m), then to the world by ``camera``
-    (``x_world = R_world_from_camera @ x_camera + center``, per ``world_index``; without it the world
-    is the one wearer's scene camera frame). Rows below ``min_confidence`` or without 3D data are
-    dropped with a warning; one ray per ``world_index`` (the most confident).
+    (``x_world = R_world_from_camera @ x_camera + center``, looked up by each datum's ``world_index``;
+    without it the world is the one wearer's scene camera frame). Frames: ``round((t − start_ns) · fps
+    / 1e9)`` of ``gaze_timestamp`` (``start_ns`` default the earliest kept datum, ``fps`` default the
+    files' own rate, so each datum gets its own frame). Rows below ``min_confidence`` or without 3D
+    data, and data sharing a frame with a nearer one, are dropped, counted in a warning and in
+    ``sampling``. ``bandwidth``: every ray's ``h`` (radians).
     """
     paths = as_paths(paths)
     names = wearer_names(paths, persons, ("gaze_positions",))
-    all_frames, all_persons, all_origins, all_directions = [], [], [], []
+    h = tool_bandwidth(bandwidth, "read_pupil")
+    wearers = []
     for index, (path, person) in enumerate(zip(paths, names)):
         pose = camera_of(camera, index, person, len(paths))
-        path, frames, origins, directions = _pupil_table(path, min_confidence)
-        origins, directions = camera_rays_to_world(frames, origins, directions, pose, path=path)
-        all_frames += frames.tolist()
-        all_persons += [person] * len(frames)
-        all_origins.append(origins)
-        all_directions.append(directions)
-    origins, directions = np.concatenate(all_origins), np.concatenate(all_directions)
-    return stack_rays(all_frames, all_persons, origins, directions, np.full(len(all_frames), float(bandwidth)),
-                      path=paths[0] if len(paths) == 1 else ", ".join(paths))
+        path, times, frames, origins, directions, read, drops, rate = _pupil_table(path, min_confidence)
+        wearers.append(TimedRays(path, person, times, origins, directions, np.full(len(times), h), None, pose, read,
+                                 drops, pose_frames=frames, rate=rate))
+    return rays_on_time_grid(wearers, fps=grid_fps(fps, wearers, NEON_FPS), start_ns=start_ns,
+                             path=paths[0] if len(paths) == 1 else ", ".join(paths))
 
 
 def write_pupil(path, recording: RayRecording, *, person: Optional[str] = None, camera: Optional[CameraPoses] = None,
@@ -345,7 +353,9 @@ def write_pupil(path, recording: RayRecording, *, person: Optional[str] = None, 
     The inverse of :func:`read_pupil`: world → scene camera (``camera``) → OpenCV axes, millimetres.
     Both eye centres sit ±31.5 mm along the camera's x axis around the origin (eye 0, the right eye,
     on +x), both gaze normals are the direction, ``gaze_point_3d`` is 1 m along it; ``confidence`` is
-    1. ``gaze_timestamp`` is ``timestamps`` (seconds, one per frame) or ``frame / 30``; ``norm_pos``
+    1. ``gaze_timestamp`` is ``timestamps`` (seconds, one per frame), else the frame's time on the
+    recording's grid (``(start_ns + frame · 1e9 / fps) / 1e9`` from ``recording.sampling``), else ``frame /
+    30``; reading it back with that ``sampling``'s ``fps`` and ``start_ns`` gives the same frames. ``norm_pos``
     and ``base_data`` are left empty (they need the camera intrinsics and the pupil data).
     """
     frames, origins, directions, _ = person_rays(recording, person, path)
@@ -353,7 +363,13 @@ def write_pupil(path, recording: RayRecording, *, person: Optional[str] = None, 
     origins_mm = _opencv_from_ours(origins) / _MM
     directions = _opencv_from_ours(directions)
     directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    times = frames / 30.0 if timestamps is None else np.asarray(timestamps, dtype=float).reshape(-1)
+    grid = recording.sampling
+    if timestamps is not None:
+        times = np.asarray(timestamps, dtype=float).reshape(-1)
+    elif grid is not None:
+        times = (grid.start_ns + frames * (1e9 / grid.fps)) / 1e9
+    else:
+        times = frames / 30.0
     if len(times) != len(frames):
         raise ValueError(f"timestamps has {len(times)} values for {len(frames)} frames")
     offset = np.array([_HALF_EYE_SEPARATION_MM, 0.0, 0.0])
@@ -399,27 +415,27 @@ def _neon_table(path):
     """Times (ns) and our-camera directions of the kept samples of one Neon ``gaze.csv``."""
     table = read_csv_table(path, _NEON_REQUIRED, ("worn", "blink id"),
                            hint="a Neon gaze.csv export (columns " + ", ".join(_NEON_REQUIRED) + ")")
-    times, azimuth, elevation = [], [], []
-    dropped = {"samples not worn (worn = 0)": 0, "samples in a blink": 0}
+    times, azimuth, elevation, all_times = [], [], [], []
+    not_worn, blink = 0, 0
     for row in table.rows:
         time = row.integer("timestamp [ns]")
+        all_times.append(time)
         az, el = row.number("azimuth [deg]"), row.number("elevation [deg]")
         if not (-180.0 <= az <= 180.0 and -90.0 <= el <= 90.0):
             raise row.error(f"azimuth {az:g}°, elevation {el:g}° out of range (azimuth in [−180, 180], "
                             "elevation in [−90, 90] degrees)")
         if table.has("worn") and row.cell("worn") and row.number("worn") == 0:
-            dropped["samples not worn (worn = 0)"] += 1
+            not_worn += 1
             continue
         if table.has("blink id") and row.cell("blink id"):
-            dropped["samples in a blink"] += 1
+            blink += 1
             continue
         times.append(time)
         azimuth.append(az)
         elevation.append(el)
-    _drop_warning(table.path, dropped)
-    if not times:
-        raise InputFileError(f"no worn, blink-free gaze sample among {len(table.rows)} rows", table.path)
-    return table.path, np.asarray(times, np.int64), neon_angles_to_direction(azimuth, elevation)
+    drops = (("filtered", not_worn, "not worn (worn = 0)"), ("filtered", blink, "in a blink"))
+    return (table.path, np.asarray(times, np.int64), neon_angles_to_direction(azimuth, elevation).reshape(-1, 3),
+            len(table.rows), drops, native_fps(all_times))
 
 
 def frames_on_grid(times_ns: np.ndarray, start_ns: int, fps: float) -> tuple[np.ndarray, np.ndarray]:
@@ -432,48 +448,128 @@ def frames_on_grid(times_ns: np.ndarray, start_ns: int, fps: float) -> tuple[np.
     return frames, keep_one_per_frame(frames, -np.abs(exact - frames))
 
 
-def read_neon(paths, *, camera: Cameras = None, persons: Optional[Sequence[str]] = None, fps: float = NEON_FPS,
-              start_ns: Optional[int] = None, bandwidth: float = DEFAULT_BANDWIDTH_NEON) -> RayRecording:
+def native_fps(times_ns) -> Optional[float]:
+    """A stream's own rate: ``1e9 / median Δt`` of its sorted sample times (ns); None for fewer than two
+    distinct times."""
+    steps = np.diff(np.sort(np.asarray(times_ns, np.int64)))
+    steps = steps[steps > 0]
+    return 1e9 / float(np.median(steps)) if len(steps) else None
+
+
+class TimedRays(NamedTuple):
+    """One wearer's samples before the time grid (:func:`rays_on_time_grid`): ``times_ns`` on the shared
+    clock, ``origins``/``directions`` ``(M, 3)`` in the frame ``camera`` places in the world (``None``: as
+    they are), ``bandwidth`` ``(M,)``, ``depth`` ``(M,)`` or None. ``pose_frames``: the frame ids to look
+    the poses up by (Pupil Core's ``world_index``; None: the grid's frames). ``read``: the samples read
+    before the reader's own drops, ``drops``: those drops as ``(Sampling field, count, why)``; ``rate``: the
+    stream's own rate (Hz) from all the samples read (:func:`native_fps`; None: from ``times_ns``)."""
+
+    path: str
+    person: str
+    times_ns: np.ndarray
+    origins: np.ndarray
+    directions: np.ndarray
+    bandwidth: np.ndarray
+    depth: Optional[np.ndarray]
+    camera: Optional[CameraPoses]
+    read: int
+    drops: tuple = ()
+    pose_frames: Optional[np.ndarray] = None
+    rate: Optional[float] = None
+
+
+def grid_fps(fps: Optional[float], wearers: Sequence[TimedRays], default: float) -> float:
+    """The time grid's rate: ``fps`` when given, else the highest native rate of the wearers' streams
+    (:func:`native_fps`, so each sample gets its own frame), else ``default`` (single samples)."""
+    if fps is not None:
+        return float(fps)
+    rates = [r for r in (native_fps(w.times_ns) if w.rate is None else w.rate for w in wearers) if r is not None]
+    return max(rates, default=default)
+
+
+def rays_on_time_grid(wearers: Sequence[TimedRays], *, fps: float, start_ns: Optional[int] = None,
+                      rotation: Optional[np.ndarray] = None, path) -> RayRecording:
+    """Wearers' timestamped samples → one world :class:`RayRecording` on the grid
+    ``frame = round((t − start_ns) · fps / 1e9)`` (:func:`frames_on_grid`; ``start_ns`` default the earliest
+    sample), each wearer's rays placed by its ``camera`` then turned by ``rotation`` (3×3, e.g. a y-up
+    world onto z-up). A sample sharing its frame with a nearer one of the same wearer is merged away.
+    Every drop, the reader's own and the grid's, is counted per wearer in one warning and in all in
+    ``RayRecording.sampling`` (:class:`~jaxgaze.io.rays.Sampling`); a wearer with no sample left is an
+    :class:`InputFileError`."""
+    for wearer in wearers:
+        if len(wearer.times_ns) == 0:
+            why = ", ".join(f"{count} {text}" for _, count, text in wearer.drops if count)
+            raise InputFileError(f"no gaze sample left of {wearer.read}" + (f" ({why})" if why else ""), wearer.path)
+    if start_ns is None:
+        start_ns = min(int(np.min(w.times_ns)) for w in wearers)
+    counts = {"read": 0, "kept": 0, "outside": 0, "merged": 0, "filtered": 0}
+    frames_all, persons, origins_all, directions_all, bandwidth_all, depth_all = [], [], [], [], [], []
+    for wearer in wearers:
+        frames, keep = frames_on_grid(wearer.times_ns, start_ns, fps)
+        merged = len(frames) - len(keep)
+        drops = [*wearer.drops, ("merged", merged, f"sharing a frame of the {fps:.6g} fps grid with a nearer sample")]
+        dropped = wearer.read - len(keep)
+        if dropped:
+            warnings.warn(f"{wearer.path}: dropped {dropped} of {wearer.read} gaze samples (kept {len(keep)}): "
+                          + ", ".join(f"{count} {text}" for _, count, text in drops), stacklevel=3)
+        frames = frames[keep]
+        pose_frames = frames if wearer.pose_frames is None else np.asarray(wearer.pose_frames)[keep]
+        origins, directions = camera_rays_to_world(pose_frames, wearer.origins[keep], wearer.directions[keep],
+                                                   wearer.camera, path=wearer.path)
+        if rotation is not None:
+            origins, directions = origins @ rotation.T, directions @ rotation.T
+        frames_all += frames.tolist()
+        persons += [wearer.person] * len(frames)
+        origins_all.append(origins)
+        directions_all.append(directions)
+        bandwidth_all.append(np.asarray(wearer.bandwidth, dtype=np.float64)[keep])
+        depth_all.append(np.full(len(keep), np.nan) if wearer.depth is None else np.asarray(wearer.depth)[keep])
+        counts["read"] += wearer.read
+        counts["kept"] += len(keep)
+        for field, count, _ in drops:
+            counts[field] += count
+    depth = None if all(w.depth is None for w in wearers) else np.concatenate(depth_all)
+    recording = stack_rays(frames_all, persons, np.concatenate(origins_all), np.concatenate(directions_all),
+                           np.concatenate(bandwidth_all), path=path, depth=depth)
+    return recording._replace(sampling=Sampling(float(fps), int(start_ns), **counts))
+
+
+def read_neon(paths, *, camera: Cameras = None, persons: Optional[Sequence[str]] = None,
+              fps: Optional[float] = None, start_ns: Optional[int] = None,
+              bandwidth: float = DEFAULT_BANDWIDTH_NEON) -> RayRecording:
     """Neon ``gaze.csv`` exports (one per wearer) → a world :class:`RayRecording`.
 
     Direction from ``azimuth [deg]`` / ``elevation [deg]`` (:func:`neon_angles_to_direction`), origin
     the scene camera, then to the world by ``camera`` (per frame; without it the world is the one
     wearer's scene camera frame). Frames: ``round((t − start_ns) · fps / 1e9)``, ``start_ns`` by
-    default the earliest kept sample of all files, one sample per frame (the nearest). Samples not
-    worn or in a blink are dropped with a warning.
+    default the earliest kept sample of all files, ``fps`` by default the files' own rate (each sample
+    its own frame). Samples not worn or in a blink, and samples sharing a frame with a nearer one, are
+    dropped, counted in a warning and in ``sampling``. ``bandwidth``: every ray's ``h`` (radians).
     """
     paths = as_paths(paths)
     names = wearer_names(paths, persons, ("gaze",))
-    return _neon_rays([_neon_table(path) for path in paths], names, camera, start_ns, fps, bandwidth)
+    return _neon_rays([_neon_table(path) for path in paths], names, camera, start_ns, fps, tool_bandwidth(bandwidth, "read_neon"))
 
 
 def _neon_rays(samples, names, camera, start_ns, fps, bandwidth) -> RayRecording:
-    """Each wearer's ``(path, times_ns, scene-camera directions)`` → one world :class:`RayRecording`: the
-    nearest sample per frame of the time grid (:func:`frames_on_grid`), origin the scene camera, placed by
-    ``camera`` (:func:`read_neon`, :func:`read_neon_recording`)."""
-    paths = [path for path, _, _ in samples]
-    if start_ns is None:
-        start_ns = min(int(times.min()) for _, times, _ in samples)
-    all_frames, all_persons, all_origins, all_directions = [], [], [], []
-    for index, ((path, times, directions), person) in enumerate(zip(samples, names)):
-        pose = camera_of(camera, index, person, len(paths))
-        frames, keep = frames_on_grid(times, start_ns, fps)
-        frames, directions = frames[keep], directions[keep]
-        origins, directions = camera_rays_to_world(frames, np.zeros_like(directions), directions, pose, path=path)
-        all_frames += frames.tolist()
-        all_persons += [person] * len(frames)
-        all_origins.append(origins)
-        all_directions.append(directions)
-    return stack_rays(all_frames, all_persons, np.concatenate(all_origins), np.concatenate(all_directions),
-                      np.full(len(all_frames), float(bandwidth)),
-                      path=paths[0] if len(paths) == 1 else ", ".join(paths))
+    """Each wearer's ``(path, times_ns, scene-camera directions, rows read, drops, native rate)`` → one world
+    :class:`RayRecording` on the time grid (:func:`rays_on_time_grid`), origin the scene camera, placed
+    by ``camera`` (:func:`read_neon`, :func:`read_neon_recording`)."""
+    paths = [sample[0] for sample in samples]
+    wearers = [TimedRays(path, person, times, np.zeros_like(directions), directions,
+                         np.full(len(times), float(bandwidth)), None, camera_of(camera, index, person, len(paths)),
+                         read, drops, rate=rate)
+               for index, ((path, times, directions, read, drops, rate), person) in enumerate(zip(samples, names))]
+    return rays_on_time_grid(wearers, fps=grid_fps(fps, wearers, NEON_FPS), start_ns=start_ns,
+                             path=paths[0] if len(paths) == 1 else ", ".join(paths))
 
 
 def write_neon(path, recording: RayRecording, *, person: Optional[str] = None, camera: Optional[CameraPoses] = None,
-               fps: float = NEON_FPS, start_ns: int = 0) -> int:
+               fps: Optional[float] = None, start_ns: Optional[int] = None) -> int:
     """Write one person's rays as a Neon ``gaze.csv``, atomically; returns the number of rows.
 
-    The inverse of :func:`read_neon`: ``timestamp [ns] = start_ns + round(frame · 1e9 / fps)``,
+    The inverse of :func:`read_neon`: ``timestamp [ns] = start_ns + round(frame · 1e9 / fps)`` (both by
+    default the recording's ``sampling``, else :data:`NEON_FPS` and 0),
     azimuth and elevation by :func:`direction_to_neon_angles`, ``worn`` 1, no fixation or blink;
     ``gaze x/y [px]`` are left empty (they need the scene camera's intrinsics). Neon has no gaze
     origin, so every ray must start at the scene camera (within 1 mm), else ``ValueError``.
@@ -485,6 +581,9 @@ def write_neon(path, recording: RayRecording, *, person: Optional[str] = None, c
         raise ValueError(f"Neon's gaze.csv holds no gaze origin, but the ray of frame {int(frames[np.argmax(off)])} "
                          f"starts {1000 * off.max():.0f} mm from the scene camera: pass the wearer's scene camera "
                          "poses as camera=")
+    grid = recording.sampling
+    fps = fps if fps is not None else grid.fps if grid is not None else NEON_FPS
+    start_ns = start_ns if start_ns is not None else grid.start_ns if grid is not None else 0
     azimuth, elevation = direction_to_neon_angles(directions)
     rows = [["", "", int(start_ns + round(int(frame) * 1e9 / fps)), "", "", "1.0", "", "", format_float(az),
              format_float(el)] for frame, az, el in zip(frames, azimuth, elevation)]
@@ -492,32 +591,70 @@ def write_neon(path, recording: RayRecording, *, person: Optional[str] = None, c
 
 
 def read_neon_recording(paths, *, camera: Cameras = None, persons: Optional[Sequence[str]] = None,
-                        fps: float = NEON_FPS, start_ns: Optional[int] = None,
+                        fps: Optional[float] = None, start_ns: Optional[int] = None,
                         bandwidth: float = DEFAULT_BANDWIDTH_NEON) -> RayRecording:
     """Native Neon recording folders (one per wearer) → a world :class:`RayRecording`, through
     ``pupil-labs-neon-recording`` (``pip install 'jaxgaze[neon]'``; :class:`MissingExtraError` without it).
 
-    The gaze pixels are undistorted with the recording's scene camera intrinsics and unprojected
-    (OpenCV), then follow :func:`read_neon` (``cart_to_spherical`` angles, time grid, camera poses).
-    Every sample is kept (the native gaze stream has no ``worn``/``blink id`` columns).
+    The gaze stream (``gaze_200hz`` when the recording has it, else the real-time ``gaze ps*``: the
+    library's ``recording.gaze``, ``time`` in UTC ns and ``point`` in scene pixels) is undistorted with
+    the recording's scene camera intrinsics (``calibration.bin``) and unprojected (OpenCV), then follows
+    :func:`read_neon` (``cart_to_spherical`` angles, time grid at the stream's own rate by default,
+    camera poses). As :func:`read_neon` drops the rows of ``worn`` 0 or with a ``blink id``, samples the
+    recording's ``worn`` stream marks not worn (0) or that fall within one of its ``blinks`` (``start_time``
+    to ``stop_time``) are dropped; these drops and the time grid's merges are counted in a warning and in
+    ``sampling``.
     """
     neon = require_extra("pupil_labs.neon_recording", "neon")
     paths = as_paths(paths)
     names = wearer_names(paths, persons, ())
     samples = []
     for path in paths:
+        if not os.path.isdir(path):
+            raise InputFileError("not a folder: a native Neon recording is the folder holding info.json and the "
+                                 "gaze streams", path)
         recording = neon.open(path)
         gaze = recording.gaze
         times = np.asarray(gaze.time if hasattr(gaze, "time") else gaze.ts, dtype=np.int64)  # ns; renamed in 2.0
-        pixels = np.stack([np.asarray(gaze.x), np.asarray(gaze.y)], axis=-1).astype(np.float32).reshape(-1, 1, 2)
+        points = np.asarray(gaze.point) if hasattr(gaze, "point") else np.stack([gaze.x, gaze.y], axis=-1)  # 2.0: point
+        pixels = points.astype(np.float64).reshape(-1, 1, 2)
         calibration = recording.calibration
         if calibration is None:
             raise InputFileError("the recording has no scene camera calibration to unproject its gaze with", path)
-        undistorted = cv2.undistortPoints(pixels, np.asarray(calibration.scene_camera_matrix),
-                                          np.asarray(calibration.scene_distortion_coefficients)).reshape(-1, 2)
+        # iterated to convergence (OpenCV's default 5 iterations leave 0.01 px near the image's edge)
+        undistorted = cv2.undistortPointsIter(pixels, np.asarray(calibration.scene_camera_matrix, dtype=np.float64),
+                                              np.asarray(calibration.scene_distortion_coefficients, dtype=np.float64),
+                                              None, None, _UNDISTORT_CRITERIA).reshape(-1, 2)
         rays_opencv = np.concatenate([undistorted, np.ones((len(undistorted), 1))], axis=1)
-        samples.append((os.fspath(path), times, _ours_from_opencv(rays_opencv)))
-    return _neon_rays(samples, names, camera, start_ns, fps, bandwidth)
+        directions = _ours_from_opencv(rays_opencv)
+        not_worn, blink = _neon_native_drops(recording, times)
+        keep = ~(not_worn | blink)
+        drops = (("filtered", int(not_worn.sum()), "not worn (worn stream 0)"),
+                 ("filtered", int((blink & ~not_worn).sum()), "in a blink (blinks stream)"))
+        samples.append((os.fspath(path), times[keep],
+                        (directions / np.linalg.norm(directions, axis=1, keepdims=True))[keep], len(times), drops,
+                        native_fps(times)))
+    return _neon_rays(samples, names, camera, start_ns, fps, tool_bandwidth(bandwidth, "read_neon_recording"))
+
+
+def _neon_native_drops(recording, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Masks of the gaze samples at ``times`` (ns) that a native recording's ``worn`` stream marks not worn
+    (value 0 at the same time) and that fall within one of its ``blinks`` (``start_time ≤ t ≤ stop_time``);
+    all False for a stream the recording lacks (the library raises ``AttributeError``)."""
+    try:
+        worn = recording.worn
+        off = np.asarray(worn.time, dtype=np.int64)[np.asarray(worn.worn) == 0]
+    except AttributeError:
+        off = np.empty(0, np.int64)
+    try:
+        blinks = recording.blinks
+        starts, stops = np.asarray(blinks.start_time, np.int64), np.asarray(blinks.stop_time, np.int64)
+    except AttributeError:
+        starts = stops = np.empty(0, np.int64)
+    blink = np.zeros(len(times), dtype=bool)
+    for start, stop in zip(starts, stops):
+        blink |= (times >= start) & (times <= stop)
+    return np.isin(times, off), blink
 
 
 def _is_neon(path) -> bool:
@@ -528,14 +665,31 @@ def _is_neon(path) -> bool:
 
 
 def read_pupil_labs(paths, *, camera: Cameras = None, persons: Optional[Sequence[str]] = None,
-                    fps: Optional[float] = None) -> RayRecording:
-    """Pupil Core or Neon CSV exports, told apart by their header (Neon's names ``azimuth [deg]``):
-    :func:`read_neon` (with ``fps``, default :data:`NEON_FPS`) or :func:`read_pupil` (frames of its own).
-    Both kinds at once are an :class:`InputFileError`."""
+                    fps: Optional[float] = None, **options) -> RayRecording:
+    """Pupil Core or Neon CSV exports, told apart by their header (Neon's names ``azimuth [deg]``), or
+    native Neon recording folders (holding ``info.json``): :func:`read_neon`, :func:`read_pupil` or
+    :func:`read_neon_recording`, with ``fps`` (default: the files' own rate) and the reader's own
+    ``options`` (all: ``start_ns``, ``bandwidth``; Pupil Core: ``min_confidence``, which Neon refuses).
+    Kinds mixed are an :class:`InputFileError`."""
     paths = as_paths(paths)
+    folders = [os.path.isdir(path) for path in paths]
+    if any(folders):
+        if not all(folders):
+            raise InputFileError("Neon recording folders and CSV exports mixed: convert them separately",
+                                 paths[folders.index(False)])
+        for path in paths:
+            if not os.path.isfile(os.path.join(path, "info.json")):
+                raise InputFileError("a folder, but no info.json in it: expected a native Neon recording folder "
+                                     "(or pass the export's gaze.csv / gaze_positions.csv)", path)
+        if "min_confidence" in options:
+            raise ValueError("min_confidence= filters Pupil Core's gaze_positions.csv; Neon gaze has no confidence")
+        return read_neon_recording(paths, camera=camera, persons=persons, fps=fps, **options)
     neon = [_is_neon(path) for path in paths]
     if any(neon) and not all(neon):
         raise InputFileError("Pupil Core and Neon exports mixed: convert them separately", paths[neon.index(False)])
     if neon[0]:
-        return read_neon(paths, camera=camera, persons=persons, **({} if fps is None else {"fps": fps}))
-    return read_pupil(paths, camera=camera, persons=persons)
+        if "min_confidence" in options:
+            raise ValueError("min_confidence= filters Pupil Core's gaze_positions.csv; a Neon gaze.csv has no "
+                             "confidence column")
+        return read_neon(paths, camera=camera, persons=persons, fps=fps, **options)
+    return read_pupil(paths, camera=camera, persons=persons, fps=fps, **options)

@@ -45,7 +45,13 @@ import cv2
 import numpy as np
 
 from jaxgaze.geometry import R_OURS_FROM_OPENCV
-from jaxgaze.io.tools.common import bandwidth_from_mean_angular_error, rays_from_camera, world_rays_to_camera, tool_bandwidth
+from jaxgaze.io.tools.common import (
+    bandwidth_from_mean_angular_error,
+    eye_axes_problem,
+    rays_from_camera,
+    tool_bandwidth,
+    world_rays_to_camera,
+)
 from jaxgaze.io.rays import RayRecording
 from jaxgaze.io.text import first_few, format_float, read_csv_table, write_csv_rows
 from jaxgaze.poses import CameraPoses
@@ -188,6 +194,9 @@ def xgaze_to_rays(pitch, yaw, face_centers_opencv, *, R_normalizing=None, R_head
     count = len(pitch)
     yaw = _rows(yaw, count, (), "yaw").reshape(-1)
     centers = _rows(face_centers_opencv, count, (3,), "face_centers_opencv")
+    problem = eye_axes_problem(centers @ R_OURS_FROM_OPENCV.T, "opencv")
+    if problem is not None:
+        raise ValueError(f"xgaze_to_rays: face_centers_opencv row {problem[0]}: {problem[1]}")
     if (R_normalizing is None) == (R_head is None):
         raise ValueError("xgaze_to_rays: pass exactly one of R_normalizing and R_head")
     if R_normalizing is None:
@@ -222,7 +231,9 @@ def _read_dump(path, seen: dict) -> tuple[list, list, list, list]:
                             "(degrees?)")
         center = np.array([row.number(c) for c in XGAZE_COLUMNS[4:]])
         distance = float(np.linalg.norm(center))
-        if center[2] <= 0 or distance > _MAX_FACE_DISTANCE:
+        if center[2] <= 0:  # behind the camera: the frame check's message (eye_axes_problem)
+            raise row.error(eye_axes_problem([center @ R_OURS_FROM_OPENCV.T], "opencv")[1])
+        if distance > _MAX_FACE_DISTANCE:
             raise row.error(f"face centre {first_few(center.tolist())} is not a face in front of the camera within "
                             f"{_MAX_FACE_DISTANCE:g} m: center_z must be positive, in metres (millimetres?)")
         if use_matrix:
@@ -243,6 +254,9 @@ def _read_dump(path, seen: dict) -> tuple[list, list, list, list]:
         persons.append(person)
         centers.append(center)
         gaze.append(denormalize_gaze(pitch, yaw, R))
+    problem = eye_axes_problem(np.asarray(centers).reshape(-1, 3) @ R_OURS_FROM_OPENCV.T, "opencv")
+    if problem is not None:
+        raise table.rows[problem[0]].error(problem[1])
     return frames, persons, centers, gaze
 
 
