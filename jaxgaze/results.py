@@ -94,6 +94,11 @@ class RESULTS(eqx.Enumeration):
         "their gaze onto other targets) has a Laplace evidence within log 20 of the sampled one; its draws are "
         "one explanation, not the answer; see the posterior's alternatives"
     )
+    misfit = (
+        "the posterior predictive check flags a person: the fit sends far more of their gaze elsewhere than the "
+        "model predicts and than it does for the others (a wrong mode of their bias, or a target the model lacks); "
+        "their estimates are not to be trusted; see the posterior's predictive_check"
+    )
 
 
 #: Member names in code order (``NAMES[i]`` is the member whose code is ``i``); these are
@@ -112,6 +117,7 @@ NAMES = (
     "implausible",
     "lost",
     "ambiguous",
+    "misfit",
 )
 
 

@@ -450,7 +450,8 @@ class JointPosterior(NamedTuple):
             gaze to its target and its replicated draws (``observed (P,)``,
             ``replicated (S, P)``, ``p_value (P,)``); the share of frames the fit sends elsewhere and
             the share the model predicts (``elsewhere_observed``, ``elsewhere_predicted (P,)``), and
-            ``flagged (P,)``: people it explains much worse than the others (a wrong mode of their bias).
+            ``flagged (P,)``: people it explains much worse than the others (a wrong mode of their bias);
+            a fit that mixed but flags someone is ``misfit``, not ``successful``.
         modes: the search for rival bias modes before sampling (:class:`~jaxgaze.joint.rivals.ModeSearch`;
             ``None`` with wearers of head-mounted cameras, whose start is no mode). ``result`` is
             ``ambiguous`` when it found an alternative the data cannot rule out (:attr:`alternatives`);
@@ -705,6 +706,8 @@ def fit_joint(
         np.asarray(a) for a in _posterior_summaries(k_check, latent, arrays, prior))
     check = {"observed": observed.mean(axis=0), "replicated": replicated,
              "p_value": (replicated >= observed).mean(axis=0), **_elsewhere_check(elsewhere, predicted)}
+    if result == RESULTS.successful and check["flagged"].any():
+        result = RESULTS.misfit  # the sampler mixed, but in a mode that explains someone's gaze badly
     posterior = JointPosterior(sampler, result, method, data.people, data.fps, membership, mutual, flat,
                                data.window, start, check, search)
     return throw_if_failed(posterior, result, "fit_joint") if throw else posterior

@@ -180,4 +180,5 @@ def test_the_predictive_check_flags_a_person_left_in_a_wrong_mode(rival_scene, m
     # (no gaze left to compare), and the others are not flagged.
     check = post.predictive_check
     assert check["flagged"].tolist() == [False] * 5 + [True]
+    assert post.result == RESULTS.misfit  # whatever the sampler says, the fit is not a success
     assert check["elsewhere_observed"][5] > 0.9 and check["elsewhere_predicted"][5] < 0.2
