@@ -62,7 +62,10 @@ _SHOWN_WARNINGS = set()
 
 def _warning_line(message, category, filename, lineno, file=None, line=None) -> None:
     """A warning no command caught, as one ``jaxgaze: warning: ...`` line, each text once (JAX's
-    complaints about its compilation cache: once in all)."""
+    complaints about its compilation cache: once in all). A ``ResourceWarning`` (a file another library left
+    open, as pupil-labs-neon-recording does) says nothing about the data and is not shown."""
+    if issubclass(category, ResourceWarning):
+        return
     text = str(message)
     key = "cache" if "persistent compilation cache" in text or category is CompilationCacheWarning else text
     if key not in _SHOWN_WARNINGS:

@@ -133,6 +133,7 @@ def run(args) -> int:
         camera = camera[0] if len(camera) == 1 else camera
     with warnings.catch_warnings(record=True) as caught:  # printed once the input has been read
         warnings.simplefilter("always")
+        warnings.simplefilter("ignore", ResourceWarning)  # files another library left open say nothing of the data
         try:
             if "T_device_cpf" in options:
                 calibrations = [read_device_calibration(path) for path in options["T_device_cpf"]]
