@@ -327,6 +327,15 @@ def _depth_m(row) -> float:
     return depth if depth > 0 else math.nan
 
 
+def _recording_folder(path) -> str:
+    """A wearer's path without MPS's own ``eye_gaze/`` folder (or a gaze CSV in it), so that the person is named
+    after the recording (``mps_sample/eye_gaze`` → ``mps_sample``), not the folder MPS writes into it."""
+    path = os.path.normpath(os.fspath(path))
+    if os.path.isfile(path) and os.path.basename(os.path.dirname(path)) == "eye_gaze":
+        return os.path.dirname(os.path.dirname(path))
+    return os.path.dirname(path) if os.path.basename(path) == "eye_gaze" else path
+
+
 def _read_gaze(path):
     """Device times (µs), CPF origins and directions (CPF axes), bandwidths and depths along the rays of one
     gaze CSV."""
@@ -376,9 +385,10 @@ def _read_gaze(path):
     if clipped:
         warnings.warn(f"{table.path}: {clipped} of {len(table.rows)} gaze rows have intervals wider than a "
                       f"{MAX_BANDWIDTH_ARIA} rad bandwidth (blinks?): clipped to {MAX_BANDWIDTH_ARIA}", stacklevel=3)
-    if 0 < defaulted < len(table.rows):
+    if defaulted:  # Gen2 files carry no intervals at all: said, not silent
         warnings.warn(f"{table.path}: {defaulted} of {len(table.rows)} gaze rows have no usable yaw/pitch interval: "
-                      f"bandwidth {DEFAULT_BANDWIDTH_ARIA:.4f} rad", stacklevel=3)
+                      f"their bandwidth is the default {DEFAULT_BANDWIDTH_ARIA:.4f} rad (a mean error of 2°), "
+                      f"not the tool's own; --bandwidth (bandwidth=) sets another", stacklevel=3)
     tangents = np.asarray(tangents)
     directions = np.stack([tangents[:, 0], tangents[:, 1], np.ones(len(tangents))], axis=1)  # CPF axes
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
@@ -496,7 +506,7 @@ def read_aria(paths, *, camera: Optional[CameraPoses] = None, persons: Optional[
     in a warning and in ``sampling``; a wearer left without any is an :class:`InputFileError`.
     """
     paths = as_paths(paths)
-    names = wearer_names(paths, persons, ())
+    names = wearer_names([_recording_folder(p) for p in paths], persons, ())
     if clock is None:
         clock = "device" if len(paths) == 1 else "utc"
     if clock not in ("device", "utc"):
