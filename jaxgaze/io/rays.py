@@ -4,7 +4,7 @@ Rays are in the world frame: origin ``(ox, oy, oz)`` the centre of the eyes (met
 direction ``(dx, dy, dz)`` (any length, normalised on reading), and optionally the
 bandwidth ``h`` (radians) and the ``depth`` of the point of regard (metres from the origin along
 the unit direction, ``origin + depth · direction``; an empty cell where the tool gave none, as
-Aria's ``depth_m``). Errors raise :class:`~jaxgaze.io.text.InputFileError`
+Aria's ``depth_m``) with its sd ``depth_sd`` (metres; only beside ``depth``). Errors raise :class:`~jaxgaze.io.text.InputFileError`
 (``path, line N: what``); writers are atomic.
 """
 
@@ -21,7 +21,7 @@ from jaxgaze.rays import GazeRays, check_bandwidth
 __all__ = ["CSV_COLUMNS", "DEFAULT_BANDWIDTH", "Sampling", "RayRecording", "read_rays_csv", "write_rays_csv",
            "stack_rays"]
 
-#: Required columns of a rays CSV (``bandwidth`` and ``depth`` columns are optional).
+#: Required columns of a rays CSV (``bandwidth``, ``depth`` and ``depth_sd`` columns are optional).
 CSV_COLUMNS = ("frame", "person", "ox", "oy", "oz", "dx", "dy", "dz")
 #: Bandwidth ``h`` (radians) of every ray of a rays CSV without a ``bandwidth`` column.
 DEFAULT_BANDWIDTH = 0.05
@@ -63,7 +63,8 @@ class RayRecording(NamedTuple):
     (docs/conventions.md, "Far from the origin"), and locations found from ``rays`` are relative to it.
 
     ``depth`` (float64 ``(T, N)`` metres, or ``None``): the distance of each ray's point of regard from
-    its origin along its unit direction (:meth:`points_of_regard`), NaN where unknown and in padding.
+    its origin along its unit direction (:meth:`points_of_regard`), NaN where unknown and in padding;
+    ``depth_sd`` (same shape, or ``None``): its sd along the ray (metres), NaN where the tool gives none.
     ``sampling``: for readers of timestamped samples, the time grid and the count of samples kept
     and dropped (:class:`Sampling`). ``up``: the axis of the input's world that was up and was turned
     onto our +z (``"z"``: as read), for readers that know it.
@@ -76,6 +77,7 @@ class RayRecording(NamedTuple):
     depth: Optional[np.ndarray] = None
     sampling: Optional[Sampling] = None
     up: Optional[str] = None
+    depth_sd: Optional[np.ndarray] = None
 
     def world_origins(self) -> np.ndarray:
         """``(T, N, 3)`` float64 eyes in the world frame: ``rays.origins + reference``."""
@@ -92,12 +94,12 @@ class RayRecording(NamedTuple):
 
 
 def stack_rays(frames: Sequence[int], persons: Sequence[str], origins, directions, bandwidth, *,
-               path, depth=None) -> RayRecording:
-    """One ray per row (frame, person, origin (3,), direction (3,), bandwidth, optional depth) → a
+               path, depth=None, depth_sd=None) -> RayRecording:
+    """One ray per row (frame, person, origin (3,), direction (3,), bandwidth, optional depth and its sd) → a
     :class:`RayRecording`.
 
     Rows keep their order within a frame; frames are sorted; :meth:`GazeRays.from_rows`
-    pads them (``depth`` with NaN). Its ``ValueError`` becomes an :class:`InputFileError` naming ``path``.
+    pads them (``depth``, ``depth_sd`` with NaN). Its ``ValueError`` becomes an :class:`InputFileError` naming ``path``.
     """
     if len(frames) == 0:
         raise InputFileError("no gaze rays", path)
@@ -116,15 +118,20 @@ def stack_rays(frames: Sequence[int], persons: Sequence[str], origins, direction
     except ValueError as error:
         raise InputFileError(str(error), path) from None
     frame_ids = [int(f) for f in frame_array]
-    depth_grid = None
-    if depth is not None:
-        depth = np.asarray(depth, dtype=np.float64).reshape(-1)
-        if depth.shape[0] != len(frames):
-            raise ValueError(f"stack_rays: {depth.shape[0]} depths for {len(frames)} rays")
-        depth_grid = np.full(np.asarray(rays.mask).shape, np.nan)
+
+    def on_grid(values, what):  # one value per row → (T, N), NaN in padding
+        if values is None:
+            return None
+        values = np.asarray(values, dtype=np.float64).reshape(-1)
+        if values.shape[0] != len(frames):
+            raise ValueError(f"stack_rays: {values.shape[0]} {what} for {len(frames)} rays")
+        grid = np.full(np.asarray(rays.mask).shape, np.nan)
         for t, f in enumerate(frame_ids):
-            depth_grid[t, :len(rows_of[f])] = depth[rows_of[f]]
-    return RayRecording(frame_ids, [[persons[i] for i in rows_of[f]] for f in frame_ids], rays, reference, depth_grid)
+            grid[t, :len(rows_of[f])] = values[rows_of[f]]
+        return grid
+
+    return RayRecording(frame_ids, [[persons[i] for i in rows_of[f]] for f in frame_ids], rays, reference,
+                        on_grid(depth, "depths"), depth_sd=on_grid(depth_sd, "depth sds"))
 
 
 def _float32(row, column: str) -> float:
@@ -134,13 +141,13 @@ def _float32(row, column: str) -> float:
     return value
 
 
-def _depth(row) -> float:
-    """The ``depth`` cell: metres ≥ 0, NaN when empty."""
-    if not row.cell("depth"):
+def _depth(row, column: str = "depth") -> float:
+    """A ``depth`` or ``depth_sd`` cell: metres ≥ 0, NaN when empty."""
+    if not row.cell(column):
         return math.nan
-    value = _float32(row, "depth")
+    value = _float32(row, column)
     if value < 0:
-        raise row.error(f"depth must be zero or more (metres along the ray), got {row.cell('depth')}")
+        raise row.error(f"{column} must be zero or more (metres along the ray), got {row.cell(column)}")
     return value
 
 
@@ -155,9 +162,11 @@ def read_rays_csv(path, default_bandwidth: float = DEFAULT_BANDWIDTH) -> RayReco
     non-positive bandwidth or one of a radian or more (degrees?, :func:`~jaxgaze.rays.check_bandwidth`),
     a zero direction or a duplicate (frame, person).
     """
-    table = read_csv_table(path, CSV_COLUMNS, ("bandwidth", "depth"), empty="input is empty: expected a header row with "
-                           "columns " + ", ".join(CSV_COLUMNS), empty_at_end=True)
-    frames, persons, origins, directions, bandwidth, depth = [], [], [], [], [], []
+    table = read_csv_table(path, CSV_COLUMNS, ("bandwidth", "depth", "depth_sd"), empty="input is empty: expected a "
+                           "header row with columns " + ", ".join(CSV_COLUMNS), empty_at_end=True)
+    if table.has("depth_sd") and not table.has("depth"):
+        raise table.fail("a depth_sd column without a depth column")
+    frames, persons, origins, directions, bandwidth, depth, depth_sd = [], [], [], [], [], [], []
     seen: dict[tuple[int, str], int] = {}
     for row in table.rows:
         frame = row.integer("frame")
@@ -185,8 +194,11 @@ def read_rays_csv(path, default_bandwidth: float = DEFAULT_BANDWIDTH) -> RayReco
         bandwidth.append(h)
         if table.has("depth"):
             depth.append(_depth(row))
+        if table.has("depth_sd"):
+            depth_sd.append(_depth(row, "depth_sd"))
     return stack_rays(frames, persons, origins, directions, bandwidth, path=table.path,
-                      depth=depth if table.has("depth") else None)
+                      depth=depth if table.has("depth") else None,
+                      depth_sd=depth_sd if table.has("depth_sd") else None)
 
 
 def write_rays_csv(path, recording: RayRecording) -> int:
@@ -198,17 +210,19 @@ def write_rays_csv(path, recording: RayRecording) -> int:
     if recording.reference is not None:  # float64 world coordinates; otherwise the float32 values as read
         origins = recording.world_origins()
     bandwidth = np.asarray(recording.rays.bandwidth)
-    depth = None if recording.depth is None else np.asarray(recording.depth, dtype=np.float64)
+    extra = {name: np.asarray(values, dtype=np.float64) for name, values in
+             (("depth", recording.depth), ("depth_sd", recording.depth_sd)) if values is not None}
+    if "depth" not in extra:
+        extra = {}
     rows = 0
     with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as handle:
         writer = csv_writer(handle)
-        writer.writerow(CSV_COLUMNS + ("bandwidth",) + (() if depth is None else ("depth",)))
+        writer.writerow(CSV_COLUMNS + ("bandwidth",) + tuple(extra))
         for t, (frame, persons) in enumerate(zip(recording.frame_ids, recording.persons)):
             for n in np.flatnonzero(mask[t]):
                 cells = [int(frame), persons[n], *map(format_float, origins[t, n]), *map(format_float, directions[t, n]),
                          format_float(bandwidth[t, n])]
-                if depth is not None:
-                    cells.append(format_float(depth[t, n]) if np.isfinite(depth[t, n]) else "")
+                cells += [format_float(v[t, n]) if np.isfinite(v[t, n]) else "" for v in extra.values()]
                 writer.writerow(cells)
                 rows += 1
     return rows

@@ -107,6 +107,7 @@ def test_adt_points_of_regard_lie_on_the_fork_and_the_bowl():
     depth = recording.depth[:, 0]
     assert math.isnan(depth[0])  # depth_m 0: not available
     np.testing.assert_allclose(depth[1:], [float(r["depth_m"]) for r in rows(ADT / "eyegaze.csv")][1:], atol=1e-12)
+    assert np.all(recording.depth_sd[1:, 0] == 0.0)  # the digital twin's ground truth
     points = recording.points_of_regard()[:, 0] @ aria.up_rotation("y")  # back to the ADT world (y up)
     looked_at = []
     for k, time_ns in enumerate(1000 * np.array([int(r["tracking_timestamp_us"]) for r in rows(ADT / "eyegaze.csv")])):
@@ -191,10 +192,18 @@ def test_gen1_sample_every_schema_finds_trajectory_and_counts(gaze):
     assert recording.frame_ids == list(range(114)) and recording.up == "z"  # gravity (0, 0, −9.81)
     depth = recording.depth[:, 0]
     if "vergence" in gaze:  # depth_m of the vergence schema, from the CPF origin (eyes at ±31.5 mm: the same)
-        expected = [float(r["depth_m"]) for r in rows(GEN1 / gaze)][7:-2]
+        table = rows(GEN1 / gaze)[7:-2]
+        expected = [float(r["depth_m"]) for r in table]
         np.testing.assert_allclose(depth, expected, rtol=1e-9)
+        # σ_d = √2 h d² / b: the vergence angle's error through the eyes' baseline b, from the file's eye origins
+        baseline = [math.dist(*([float(r[f"t{a}_{eye}_eye_cpf"]) for a in "xyz"] for eye in ("left", "right")))
+                    for r in table]
+        h = np.asarray(recording.rays.bandwidth)[:, 0]
+        np.testing.assert_allclose(recording.depth_sd[:, 0], math.sqrt(2) * h * np.square(expected) / baseline,
+                                   rtol=1e-5)
+        assert 0.05 < np.median(recording.depth_sd[:, 0] / depth) < 1.0  # metres of doubt at metres of depth
     else:
-        assert np.all(np.isnan(depth))  # an empty depth_m
+        assert np.all(np.isnan(depth)) and np.all(np.isnan(recording.depth_sd))  # an empty depth_m
 
 
 def test_gen1_legacy_and_generalized_schemas_give_the_same_rays():

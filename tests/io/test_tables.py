@@ -199,6 +199,28 @@ def test_rays_csv_depth_round_trip_and_points_of_regard(tmp_path):
         read_rays_csv(path)
 
 
+def test_rays_csv_depth_sd_round_trip_and_errors(tmp_path):
+    """``depth_sd`` (the point of regard's sd along the ray) travels beside ``depth``: padded with NaN, written
+    empty where unknown, read back; without a depth it is refused, and it must be metres ≥ 0."""
+    rec = stack_rays([1, 1, 2], ["a", "b", "a"], np.zeros((3, 3)), [[1, 0, 0]] * 3, 0.05, path="<t>",
+                     depth=[1.0, 2.0, np.nan], depth_sd=[0.07, 0.0, np.nan])
+    np.testing.assert_array_equal(rec.depth_sd, [[0.07, 0.0], [np.nan, np.nan]])
+    path = tmp_path / "rays.csv"
+    write_rays_csv(path, rec)
+    lines = path.read_text().splitlines()
+    assert lines[0].endswith(",bandwidth,depth,depth_sd") and lines[1].endswith(",1.0,0.07") and lines[3].endswith(",,")
+    back = read_rays_csv(path)
+    np.testing.assert_array_equal(back.depth_sd, rec.depth_sd)
+    np.testing.assert_array_equal(back.depth, rec.depth)
+    header = ",".join(CSV_COLUMNS)
+    _write(path, header + ",depth_sd\n1,a,0,0,1,1,0,0,0.1\n")
+    with pytest.raises(InputFileError, match=r"a depth_sd column without a depth column"):
+        read_rays_csv(path)
+    _write(path, header + ",depth,depth_sd\n1,a,0,0,1,1,0,0,1.0,-0.1\n")
+    with pytest.raises(InputFileError, match=r"line 2: depth_sd must be zero or more"):
+        read_rays_csv(path)
+
+
 def test_rays_csv_default_bandwidth_and_errors(tmp_path):
     header = ",".join(CSV_COLUMNS) + "\n"
     path = _write(tmp_path / "r.csv", header + "1,a,0,0,1,1,0,0\n")

@@ -39,7 +39,12 @@ The ray's origin ``o`` is the midpoint of the eye origins when the file has them
 point of regard at ``depth_m · d`` from the CPF origin (``getEyeGazePointAtDepth``; 0 or empty: not
 available). Along our ray that is ``depth = depth_m − o · d`` from ``o`` (``depth_m`` itself when
 ``o`` is the CPF origin), kept as :attr:`RayRecording.depth` (NaN where absent) and invariant under
-the rigid maps below: the point of regard is ``origin + depth · d`` in the world too.
+the rigid maps below: the point of regard is ``origin + depth · d`` in the world too. Its sd along the ray
+(:attr:`RayRecording.depth_sd`): MPS's depth is where the two eyes' rays meet, so an error ``δ`` in the
+vergence angle moves it by ``δ d² / b`` (``b`` the eyes' baseline from the file's eye origins, else
+:data:`TYPICAL_IPD_M``); with each eye's angle off by ``h``, ``σ_d = √2 h d² / b`` (7 cm at 1 m for
+``h`` = 2°, 28 cm at 2 m). The ADT sequence's own ``eyegaze.csv`` (beside ``aria_trajectory.csv``) holds the
+digital twin's ground truth: ``σ_d = 0``.
 
 **Bandwidth.** MPS gives each angle an interval ``[low, high]`` containing it; its level is not
 documented, and we read it as a central :data:`INTERVAL_COVERAGE` (80 %) interval of a normal
@@ -97,6 +102,7 @@ __all__ = [
     "GAZE_FILES",
     "TRAJECTORY_FILE",
     "ADT_TRAJECTORY_FILE",
+    "TYPICAL_IPD_M",
     "UP_AXES",
     "POSE_EDGE_S",
     "LEGACY_GAZE_COLUMNS",
@@ -127,6 +133,8 @@ GAZE_FILES = {
 TRAJECTORY_FILE = "closed_loop_trajectory.csv"
 #: The Aria Digital Twin's ground-truth device trajectory (``AriaDigitalTwinDataFileNames.h``): MPS's columns.
 ADT_TRAJECTORY_FILE = "aria_trajectory.csv"
+#: The eyes' baseline (m) of a file without eye origins: an adult's mean interpupillary distance (63 mm).
+TYPICAL_IPD_M = 0.063
 #: The ``up=`` values of :func:`read_aria` → the unit vector of that axis in the input world.
 UP_AXES = {f"{sign}{axis}": (1.0 if sign != "-" else -1.0) * np.eye(3)[i]
            for sign in ("", "+", "-") for i, axis in enumerate("xyz")}
@@ -337,8 +345,8 @@ def _recording_folder(path) -> str:
 
 
 def _read_gaze(path):
-    """Device times (µs), CPF origins and directions (CPF axes), bandwidths and depths along the rays of one
-    gaze CSV."""
+    """Device times (µs), CPF origins and directions (CPF axes), bandwidths, depths along the rays and their sd
+    (the vergence rule of the module docstring) of one gaze CSV."""
     table = read_csv_table(path, ("tracking_timestamp_us", "pitch_rads_cpf"),
                            tuple(c for c in dict.fromkeys(VERGENCE_GAZE_COLUMNS + LEGACY_GAZE_COLUMNS)
                                  if c not in ("tracking_timestamp_us", "pitch_rads_cpf")),
@@ -349,7 +357,7 @@ def _read_gaze(path):
         raise table.fail("missing column 'yaw_rads_cpf' (or 'left_yaw_rads_cpf' and 'right_yaw_rads_cpf') in the "
                          "header of this eye gaze CSV")
     eyes = all(table.has(c) for c in _EYES)
-    times, origins, tangents, bandwidth, depth_cpf = [], [], [], [], []
+    times, origins, tangents, bandwidth, depth_cpf, baselines = [], [], [], [], [], []
     clipped = defaulted = 0
     for row in table.rows:
         times.append(row.integer("tracking_timestamp_us"))
@@ -361,10 +369,12 @@ def _read_gaze(path):
         if max(abs(pitch), *map(abs, yaws)) >= math.pi / 2:
             raise row.error(f"gaze angles (yaw {yaws}, pitch {pitch:g}) must lie in (−π/2, π/2) radians (degrees?)")
         tangents.append([float(np.mean(np.tan(yaws))), math.tan(pitch)])
-        origin = np.zeros(3)
+        origin, ipd = np.zeros(3), TYPICAL_IPD_M
         if eyes and all(row.cell(c) for c in _EYES):
-            origin = 0.5 * (np.array([row.number(c) for c in _EYES[:3]]) + np.array([row.number(c) for c in _EYES[3:]]))
+            left, right = np.array([row.number(c) for c in _EYES[:3]]), np.array([row.number(c) for c in _EYES[3:]])
+            origin, ipd = 0.5 * (left + right), float(np.linalg.norm(left - right)) or TYPICAL_IPD_M
         origins.append(origin)
+        baselines.append(ipd)
         depth_cpf.append(_depth_m(row))
         sd_pitch = _interval_sd(row, "pitch_low_rads_cpf", "pitch_high_rads_cpf")
         if combined:
@@ -401,7 +411,9 @@ def _read_gaze(path):
     # its origin o that is (depth_m · d − o) · d = depth_m − o · d (equal when o is the CPF origin)
     origins = np.asarray(origins)
     depth = np.asarray(depth_cpf) - np.einsum("mi,mi->m", origins, directions)
-    return table.path, times, origins, directions, np.asarray(bandwidth), depth
+    bandwidth = np.asarray(bandwidth)
+    depth_sd = np.square(np.asarray(depth_cpf)) * math.sqrt(2.0) * bandwidth / np.asarray(baselines)
+    return table.path, times, origins, directions, bandwidth, depth, depth_sd
 
 
 class _Trajectory:
@@ -524,7 +536,9 @@ def read_aria(paths, *, camera: Optional[CameraPoses] = None, persons: Optional[
     no_pose = f"without a pose (outside the trajectory, or in a gap over {max_pose_gap_s:g} s)"
     for path, person, T in zip(paths, names, transforms):
         gaze_path, trajectory_path = _wearer_files(path, eye_gaze)
-        gaze_path, times_us, origins_cpf, directions_cpf, bandwidth, depth = _read_gaze(gaze_path)
+        gaze_path, times_us, origins_cpf, directions_cpf, bandwidth, depth, depth_sd = _read_gaze(gaze_path)
+        if trajectory_path is not None and os.path.basename(trajectory_path) == ADT_TRAJECTORY_FILE:
+            depth_sd = np.zeros_like(depth_sd)  # the ADT sequence's own gaze: its depth is the digital twin's truth
         read = len(times_us)
         if frame == "cpf" or trajectory_path is None:
             if frame == "world" and (camera is None or len(paths) > 1):
@@ -535,7 +549,7 @@ def read_aria(paths, *, camera: Optional[CameraPoses] = None, persons: Optional[
                        "; pass camera= with the head's poses, or frame='cpf' for rays in the head frame"), path)
             origins, directions = origins_cpf @ R_OURS_FROM_CPF.T, directions_cpf @ R_OURS_FROM_CPF.T
             wearers.append(TimedRays(gaze_path, person, 1000 * times_us, origins, directions, bandwidth, depth, camera,
-                                     read, (("outside", 0, no_pose),)))
+                                     read, (("outside", 0, no_pose),), depth_sd=depth_sd))
             continue
         if camera is not None:
             raise ValueError("camera= places a wearer without a trajectory; this wearer's world is its "
@@ -564,7 +578,8 @@ def read_aria(paths, *, camera: Optional[CameraPoses] = None, persons: Optional[
                                      "(e.g. Aria TimeSync)", trajectory.path)
             shared_ns = shared_ns + trajectory.utc_offset_ns
         wearers.append(TimedRays(gaze_path, person, shared_ns, origins, directions, bandwidth[covered], depth[covered],
-                                 None, read, (("outside", int((~covered).sum()), no_pose),)))
+                                 None, read, (("outside", int((~covered).sum()), no_pose),),
+                                 depth_sd=depth_sd[covered]))
     distinct = {tuple(t.graph_uids) for t in trajectories.values()}
     if len(distinct) > 1:
         warnings.warn("read_aria: the trajectories have different graph_uid ("

@@ -476,6 +476,7 @@ class TimedRays(NamedTuple):
     drops: tuple = ()
     pose_frames: Optional[np.ndarray] = None
     rate: Optional[float] = None
+    depth_sd: Optional[np.ndarray] = None
 
 
 def grid_fps(fps: Optional[float], wearers: Sequence[TimedRays], default: float) -> float:
@@ -503,7 +504,7 @@ def rays_on_time_grid(wearers: Sequence[TimedRays], *, fps: float, start_ns: Opt
     if start_ns is None:
         start_ns = min(int(np.min(w.times_ns)) for w in wearers)
     counts = {"read": 0, "kept": 0, "outside": 0, "merged": 0, "filtered": 0}
-    frames_all, persons, origins_all, directions_all, bandwidth_all, depth_all = [], [], [], [], [], []
+    frames_all, persons, origins_all, directions_all, bandwidth_all, depth_all, sd_all = [], [], [], [], [], [], []
     for wearer in wearers:
         frames, keep = frames_on_grid(wearer.times_ns, start_ns, fps)
         merged = len(frames) - len(keep)
@@ -524,13 +525,15 @@ def rays_on_time_grid(wearers: Sequence[TimedRays], *, fps: float, start_ns: Opt
         directions_all.append(directions)
         bandwidth_all.append(np.asarray(wearer.bandwidth, dtype=np.float64)[keep])
         depth_all.append(np.full(len(keep), np.nan) if wearer.depth is None else np.asarray(wearer.depth)[keep])
+        sd_all.append(np.full(len(keep), np.nan) if wearer.depth_sd is None else np.asarray(wearer.depth_sd)[keep])
         counts["read"] += wearer.read
         counts["kept"] += len(keep)
         for field, count, _ in drops:
             counts[field] += count
     depth = None if all(w.depth is None for w in wearers) else np.concatenate(depth_all)
+    depth_sd = None if depth is None or all(w.depth_sd is None for w in wearers) else np.concatenate(sd_all)
     recording = stack_rays(frames_all, persons, np.concatenate(origins_all), np.concatenate(directions_all),
-                           np.concatenate(bandwidth_all), path=path, depth=depth)
+                           np.concatenate(bandwidth_all), path=path, depth=depth, depth_sd=depth_sd)
     return recording._replace(sampling=Sampling(float(fps), int(start_ns), **counts))
 
 
