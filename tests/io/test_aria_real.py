@@ -221,11 +221,18 @@ def test_gen1_sample_fps_merges_and_says_how_many():
     assert len(recording.frame_ids) == 57
 
 
-def test_gen1_sample_folder_with_two_schemas_is_refused_by_name():
-    with pytest.raises(InputFileError, match=r"mps_sample: several eye gaze CSVs in this wearer folder: "
-                                             r"eye_gaze/generalized_eye_gaze\.csv \(general\), eye_gaze/eyegaze\.csv "
-                                             r"\(general\); pass the path of the one to read"):
-        aria.read_aria(GEN1)
+def test_gen1_sample_folder_as_downloaded_reads_the_newest_schema_and_says_so():
+    """The Gen1 sample holds one model in two schemas (generalized_eye_gaze.csv, legacy eyegaze.csv): the folder as
+    downloaded is read, from the newer file, with a warning naming both; its rays are that file's."""
+    with pytest.warns(UserWarning, match=r"mps_sample: several general eye gaze CSVs \(eye_gaze/generalized_eye_gaze"
+                                         r"\.csv \(general\), eye_gaze/eyegaze\.csv \(general\)\): reading "
+                                         r"eye_gaze/generalized_eye_gaze\.csv"):
+        folder = aria.read_aria(GEN1, T_device_cpf=np.eye(4))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        file = aria.read_aria(GEN1 / "eye_gaze" / "generalized_eye_gaze.csv", T_device_cpf=np.eye(4))
+    assert folder.sampling == file.sampling and folder.persons == file.persons == [["mps_sample"]] * 114
+    np.testing.assert_array_equal(np.asarray(folder.rays.directions), np.asarray(file.rays.directions))
 
 
 # ---------------------------------------------------------------------------

@@ -272,7 +272,8 @@ def aria_cad_device_cpf(subtype: str) -> np.ndarray:
 
 def _gaze_file(folder: str, eye_gaze: Optional[str]) -> str:
     """The one eye gaze CSV of a wearer folder: any name of :data:`GAZE_FILES`, in the folder or its
-    ``eye_gaze/``, of the model ``eye_gaze`` (``"general"`` or ``"personalized"``; None: any)."""
+    ``eye_gaze/``, of the model ``eye_gaze`` (``"general"`` or ``"personalized"``; None: any). One model in
+    several schemas: the first in :data:`GAZE_FILES`' order (the newest), with a warning; two models: an error."""
     found = [os.path.join(sub, name) for sub in ("", "eye_gaze") for name in GAZE_FILES
              if os.path.isfile(os.path.join(folder, sub, name))]
     chosen = [f for f in found if eye_gaze is None or GAZE_FILES[os.path.basename(f)] == eye_gaze]
@@ -285,7 +286,13 @@ def _gaze_file(folder: str, eye_gaze: Optional[str]) -> str:
                              f"in this wearer folder nor in its eye_gaze/" + (f" (it holds {names})" if found else ""),
                              folder)
     models = sorted({GAZE_FILES[os.path.basename(f)] for f in chosen})
-    choose = "eye_gaze='general' or 'personalized', or " if eye_gaze is None and len(models) > 1 else ""
+    if len(models) == 1:  # one model in several schemas (Gen1: generalized_eye_gaze.csv and legacy eyegaze.csv)
+        preference = list(GAZE_FILES)
+        chosen.sort(key=lambda f: preference.index(os.path.basename(f)))
+        warnings.warn(f"{folder}: several {models[0]} eye gaze CSVs ({names}): reading {chosen[0]}, the newest "
+                      "schema; pass the path of another to read it", stacklevel=4)
+        return os.path.join(folder, chosen[0])
+    choose = "eye_gaze='general' or 'personalized', or " if eye_gaze is None else ""
     raise InputFileError(f"several eye gaze CSVs in this wearer folder: {names}; pass {choose}the path of the one "
                          "to read", folder)
 
