@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import re
 
+import numpy as np
+
 from jaxgaze.cli._common import CommandError, add_output, add_quiet, positive_float, summary, warn, writing
 from jaxgaze.cli._common import add_trust_units, declare_inputs, unit_rule
 from jaxgaze.io.tools import GAZE_TOOLS
@@ -161,6 +163,10 @@ def run(args) -> int:
     kept = recording.sampling
     kept = "" if kept is None else f" (kept {kept.kept} of {kept.read} samples at {kept.fps:.6g} fps)"
     up = "" if recording.up in (None, "z") else f", the input's {recording.up} axis turned up to +z"
+    if args.bandwidth is None and not GAZE_TOOLS[args.tool].own_width:  # said, not silent (docs/conventions.md)
+        widths = sorted({f"{h:.4f}" for h in np.asarray(recording.rays.bandwidth)[np.asarray(recording.rays.mask)]})
+        summary(args, f"bandwidth: {args.tool} reports no uncertainty; every ray has its documented default "
+                      f"{', '.join(widths)} rad (--bandwidth sets another)")
     summary(args, f"{rows} ray(s) of {len(recording.frame_ids)} frame(s) from {args.tool}{kept}{up} written to "
                   f"{args.out}")
     return 0

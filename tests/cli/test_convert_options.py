@@ -13,7 +13,7 @@ import pytest
 from jaxgaze.io import read_gaze_tool, read_rays_csv
 from jaxgaze.io.text import InputFileError
 from jaxgaze.io.tools import aria
-from jaxgaze.io.tools.l2cs import read_l2cs
+from jaxgaze.io.tools.l2cs import DEFAULT_BANDWIDTH_L2CS, read_l2cs
 from jaxgaze.io.tools.mediapipe import read_mediapipe
 from tests.cli.helpers import assert_failed, run_main
 
@@ -151,3 +151,17 @@ def test_read_gaze_tool_refuses_an_option_the_reader_does_not_take():
     with pytest.raises(ValueError, match=r"vertical_fov_deg= is not an option of l2cs's reader \(its options: "
                                          r"order=, bandwidth=\)"):
         read_gaze_tool("l2cs", [DATA / "l2cs_dump.csv"], vertical_fov_deg=55.0)
+
+
+def test_a_tool_without_uncertainty_says_its_rays_have_the_documented_default(tmp_path, capsys):
+    """L2CS reports no uncertainty: the summary names the default cone width every ray got (l2cs's
+    DEFAULT_BANDWIDTH_L2CS), and says nothing of it once --bandwidth is given; gaze360's own var says nothing."""
+    out = tmp_path / "rays.csv"
+    status, _, err = run_main(capsys, ["convert", "--from", "l2cs", str(DATA / "l2cs_dump.csv"), "--out", str(out)])
+    assert status == 0 and (f"bandwidth: l2cs reports no uncertainty; every ray has its documented default "
+                            f"{DEFAULT_BANDWIDTH_L2CS:.4f} rad (--bandwidth sets another)") in err
+    np.testing.assert_allclose(np.asarray(read_rays_csv(out).rays.bandwidth)[0, 0], DEFAULT_BANDWIDTH_L2CS, rtol=1e-6)
+    for argv in (["--from", "l2cs", DATA / "l2cs_dump.csv", "--bandwidth", "0.05"],
+                 ["--from", "gaze360", DATA / "gaze360_dump.csv"]):
+        status, _, err = run_main(capsys, ["convert", *map(str, argv), "--out", str(out)])
+        assert status == 0 and "reports no uncertainty" not in err

@@ -49,7 +49,8 @@ class GazeTool(NamedTuple):
     ``camera_frame``: without ``camera=`` its rays are in the camera's frame (Aria's are in its world);
     ``camera_per_file``: ``camera=`` may hold one pose track per file (one per wearer's scene camera);
     ``options``: the reader's own keyword options that :func:`read_gaze_tool` passes on (``bandwidth``
-    is taken by every tool: see there).
+    is taken by every tool: see there); ``own_width``: the tool reports each ray's uncertainty (the others'
+    rays get the reader's documented default cone width, docs/conventions.md).
     """
 
     reads: str
@@ -59,12 +60,13 @@ class GazeTool(NamedTuple):
     camera_frame: bool = True
     camera_per_file: bool = False
     options: tuple = ()
+    own_width: bool = False
 
 
 #: ``--from`` name → its :class:`GazeTool` entry.
 GAZE_TOOLS: dict[str, GazeTool] = {
     "gaze360": GazeTool("Gaze360 dump CSV (frame, person_identity, yaw, pitch, var, person_eyes3d_x/y/z)",
-                        read_gaze360),
+                        read_gaze360, own_width=True),
     "l2cs": GazeTool("L2CS-Net dump CSV (frame, face, pitch, yaw, eye_x/y/z)", read_l2cs,
                      options=("order", "bandwidth")),
     "xgaze": GazeTool("ETH-XGaze / MPIIFaceGaze / ptgaze dump CSV (frame, person, pitch, yaw, center_x/y/z, "
@@ -77,7 +79,7 @@ GAZE_TOOLS: dict[str, GazeTool] = {
     "aria": GazeTool("Project Aria folders as downloaded, one per wearer: MPS (eye_gaze/ with general_eye_gaze.csv "
                      "or its other names, slam/ or trajectory/ with closed_loop_trajectory.csv) or an Aria Digital "
                      "Twin sequence (eyegaze.csv + aria_trajectory.csv)",
-                     read_aria, wearer=True, timed=True, camera_frame=False,
+                     read_aria, wearer=True, timed=True, camera_frame=False, own_width=True,
                      options=("T_device_cpf", "frame", "up", "eye_gaze", "start_ns", "clock", "max_pose_gap_s")),
     "openface": GazeTool("OpenFace 2 CSV, one face or several (FaceLandmarkVidMulti)", read_openface_rays,
                          options=("min_confidence", "link_gate_m")),
@@ -97,7 +99,7 @@ def read_gaze_tool(tool: str, paths, *, camera: Optional[CameraPoses] = None,
     ``vertical_fov_deg``, l2cs's ``order``, pupil's and openface's ``min_confidence``…; one the tool does not
     take is a ``ValueError`` naming the tool's. ``bandwidth`` (radians, :func:`~.common.tool_bandwidth`) is
     every tool's: the readers with a default cone width take it, and for those that estimate each ray's
-    (gaze360's ``var``, aria's intervals, openface) it replaces every ray's bandwidth.
+    (gaze360's ``var``, aria's intervals) and openface it replaces every ray's bandwidth.
     """
     if tool not in GAZE_TOOLS:
         raise ValueError(f"unknown gaze tool {tool!r}: choose from {', '.join(GAZE_TOOLS)}")
