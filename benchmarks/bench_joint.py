@@ -10,7 +10,10 @@ second (the unit of NUTS's work) and the median bias error against the truth.
 Targets (2-core CPU): NUTS on 60 s × 6 people under 2 minutes; SVI on 10 min ×
 11 people under 3 minutes.
 
-    python benchmarks/bench_joint.py [--nuts-draws 500] [--svi-steps 3000] [--skip-svi]
+    python benchmarks/bench_joint.py [--nuts-draws 500] [--svi-steps 3000] [--skip-svi] [--independent-residuals]
+
+``--independent-residuals`` fits the model without a fixation's spot (``JointPrior(held_concentration=None)``,
+the model before issue 37's item 5), for the cost ratio of that item.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ import time
 import jax
 import numpy as np
 
-from jaxgaze.joint import fit_joint, joint_data
+from jaxgaze.joint import JointPrior, fit_joint, joint_data
 from jaxgaze.results import succeeded
 from jaxgaze.simulate import simulate_conversation
 
@@ -53,17 +56,20 @@ def main() -> None:
     parser.add_argument("--nuts-draws", type=int, default=500, help="NUTS warm-up and draws (default 500 each)")
     parser.add_argument("--svi-steps", type=int, default=3000)
     parser.add_argument("--skip-svi", action="store_true")
+    parser.add_argument("--independent-residuals", action="store_true",
+                        help="no fixation's spot: every frame's residual independent given its target")
     args = parser.parse_args()
+    prior = JointPrior(held_concentration=None) if args.independent_residuals else JointPrior()
     print(f"jax {jax.__version__} on {jax.devices()[0].device_kind}")
 
     short = [simulate_conversation(jax.random.key(100 + k), num_people=6, num_objects=2, duration_s=60.0, fps=10.0)
              for k in range(2)]
-    nuts = _run("NUTS 60 s × 6 people", short, num_warmup=args.nuts_draws, num_samples=args.nuts_draws)
+    nuts = _run("NUTS 60 s × 6 people", short, num_warmup=args.nuts_draws, num_samples=args.nuts_draws, prior=prior)
     table = [("NUTS, 60 s × 6 people, 10 fps", nuts, 120.0)]
     if not args.skip_svi:
         long = [simulate_conversation(jax.random.key(200 + k), num_people=11, num_objects=2, duration_s=600.0,
                                       fps=10.0) for k in range(2)]
-        svi = _run("SVI 10 min × 11 people", long, method="svi", num_steps=args.svi_steps, num_samples=500)
+        svi = _run("SVI 10 min × 11 people", long, method="svi", num_steps=args.svi_steps, num_samples=500, prior=prior)
         table.append(("SVI, 10 min × 11 people, 10 fps", svi, 180.0))
 
     print("\n| run | first call | second call | compile share | median bias error | target |")

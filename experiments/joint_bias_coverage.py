@@ -53,7 +53,9 @@ def evaluate_scene(key, share, people, duration_s, warmup, draws):
     draws_b = post.samples["bias"]  # (S, P, 2)
     error = _wrapped(draws_b.mean(0) - scene.bias)
     bias_iv, h_iv = post.interval("bias"), post.interval("cone_width")
+    held = post.samples.get("held_cone_share")
     return {"people": P, "result": name(post.result), "seconds": seconds,
+            "held_share": None if held is None else float(np.mean(held)),
             "z": (error / draws_b.std(0)).ravel().tolist(),
             "error_deg": np.degrees(np.linalg.norm(error, axis=-1)).tolist(),
             "bias_cover": ((scene.bias >= bias_iv[..., 0]) & (scene.bias <= bias_iv[..., 1])).ravel().tolist(),

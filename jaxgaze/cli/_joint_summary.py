@@ -17,11 +17,21 @@ def summary(posterior, data, written) -> str:
         f"people: {', '.join(posterior.people)} ({data.num_frames} frames at {data.fps:g} fps, "
         + ("with speech)" if data.has_speech else "no speech)"),
         "bias (yaw, tilt) deg: " + "; ".join(f"{n} ({b[0]:+.2f}, {b[1]:+.2f})" for n, b in zip(posterior.people, bias)),
-        "cone width deg: " + "; ".join(f"{n} {w:.2f}" for n, w in zip(posterior.people, width))] + _coupling(posterior) + [
+        "cone width deg: " + "; ".join(f"{n} {w:.2f}" for n, w in zip(posterior.people, width))] + _held(posterior)
+        + _coupling(posterior) + [
         f"concurrences: {posterior.num_concurrences}; diagnostics ({posterior.method}): {stats}"] + [
         f"predictive check: {n}'s gaze goes elsewhere in {o:.0%} of frames, the fit predicts {e:.0%} (a wrong mode?)"
         for n, o, e, f in zip(posterior.people, *check) if f] + [
         f"written to {' and '.join(written)}"])
+
+
+def _held(posterior) -> list[str]:
+    """The share of the cone's variance held through a fixation (a fixation's spot), with its 90% interval."""
+    if "held_cone_share" not in posterior.samples:
+        return []
+    low, high = posterior.interval("held_cone_share")
+    return [f"held through a fixation: {np.mean(posterior.samples['held_cone_share']):.0%} of the cone's variance "
+            f"(90% interval {low:.0%}-{high:.0%})"]
 
 
 def _coupling(posterior) -> list[str]:

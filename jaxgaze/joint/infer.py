@@ -50,7 +50,7 @@ __all__ = ["JointPosterior", "SVIDiagnostics", "fit_joint", "mean_field_guide", 
 #: Inference methods of :func:`fit_joint`.
 METHODS = ("nuts", "svi")
 _SUMMARY_SITES = ("bias", "cone_width", "alpha_person", "alpha_object", "speaker_effect", "stay",
-                  "concurrence_locations", "eye_offset", "coupling", "head_lag")
+                  "concurrence_locations", "eye_offset", "coupling", "head_lag", "held_cone_share")
 #: Draws used for the membership probabilities and the predictive check.
 _MAX_PROBABILITY_DRAWS = 200
 #: Two free concurrences closer than this (metres) in every window after the start's refinement are one
@@ -84,6 +84,8 @@ def _start_values(start: JointStart, prior: JointPrior, num_people: int) -> dict
         values["concurrence_offset"] = np.zeros((K, 3))
         if W > 1:
             values["concurrence_drift"] = np.zeros((W, K, 3))
+    if prior.held_concentration is not None:
+        values["held_fraction"] = np.asarray(0.25)
     if start.coupling is not None:
         values["coupling"] = np.asarray(start.coupling, float)
         values["head_lag"] = np.asarray(start.head_lag, float)
@@ -146,7 +148,7 @@ def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: 
     if "eye_offset" in kept:
         held["eye_offset"] = kept["eye_offset"]
         held["calibration_outlier_share"] = jax.nn.sigmoid(kept["calibration_outlier_share"])
-    coupled = {k: v for k, v in start.items() if k in ("coupling", "head_lag")}  # head pose only: the profile's
+    coupled = {k: v for k, v in start.items() if k in ("coupling", "head_lag", "held_fraction")}  # profile's, start's
     free = {k: v for k, v in start.items() if k not in kept and k not in coupled and k != "stay"}
     independent = handlers.condition(_model(prior, None), {
         **held, "stay": jnp.asarray(1e-6, arrays.gaze_angles.dtype), **rivals.constrained(coupled)})

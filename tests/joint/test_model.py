@@ -17,7 +17,7 @@ from jaxgaze.geometry import head_pose_to_rotation
 from jaxgaze.joint import BLOCK_FRAMES, JointPrior, joint_data, target_marginals
 from jaxgaze.joint.model import candidate_log_probabilities, joint_model, marginal_log_likelihood
 from jaxgaze.joint.infer import _arrays
-from jaxgaze.joint.model import _candidate_terms
+from jaxgaze.joint.model import MAX_HELD_CONE_SHARE, _candidate_terms
 
 
 def _tiny(seed=0, T=2, P=3, K=1):
@@ -54,31 +54,61 @@ def _per_gazer(data, params):
             world = data.R_world_from_head[t, i] @ head
             h = math.sqrt(params["cone_width"][i] ** 2 + data.measurement_scale[t, i] ** 2)
             logits, liks = {}, {}
+            residuals = {}
             for j in range(P):
                 if j != i and data.present[t, j]:
                     logits[j] = params["alpha_person"] + params["speaker_effect"] * data.speaking[t, j]
                     u = data.eye_positions[t, j] - data.eye_positions[t, i]
                     liks[j] = log_fisher(world @ u / np.linalg.norm(u), h)
+                    residuals[j] = world - u / np.linalg.norm(u)
             for k in range(K):
                 logits[P + k] = params["alpha_object"]
                 u = params["locations"][0, k] - data.eye_positions[t, i]
                 liks[P + k] = log_fisher(world @ u / np.linalg.norm(u), h)
+                residuals[P + k] = world - u / np.linalg.norm(u)
             logits["e"] = 0.0
             liks["e"] = log_fisher(head[0], JointPrior().elsewhere_spread)  # around the head's +x
             norm = math.log(sum(math.exp(v) for v in logits.values()))
             out[t, i] = {c: (logits[c] - norm, liks[c]) for c in logits}
-            rays[t, i] = (world, h)
+            rays[t, i] = (world, h, residuals)
     return out, rays, log_fisher
+
+
+def _held_spot(terms, rays, observed, i, t, c, rho, share, cone_width):
+    """The held spot's log density ratio for person ``i``'s frame ``t`` held at ``c`` from ``t − 1``, frame by frame.
+
+    The earlier frames weigh ``γ_{t−1} = 1``, ``γ_{s} = γ_{s+1} ρ q_s / (ρ q_s + (1 − ρ) π_{s+1}(c))``, ``q`` the
+    one-frame posterior, ``π`` the prior of a new target.
+    """
+    v0 = share * cone_width**2
+    A, S, gamma = 0.0, np.zeros(3), 1.0
+    for s in range(t - 1, -1, -1):
+        if s < t - 1:  # frame s is of the fixation if c was kept from s to s + 1, not chosen anew
+            joint = {k: sum(v) for k, v in terms[s, i].items()}
+            q = math.exp(joint.get(c, -np.inf) - np.logaddexp.reduce(list(joint.values()))) if observed[s] else 1.0
+            gamma *= rho * q / (rho * q + (1 - rho) * math.exp(terms[s + 1, i][c][0]))
+        if gamma == 0.0:  # c was no candidate at frame s (absent): no earlier frame is of this fixation
+            break
+        if observed[s]:
+            e = rays[s, i][1] ** 2 - v0
+            A, S = A + gamma / e, S + gamma * rays[s, i][2][c] / e
+    w2 = rays[t, i][1] ** 2
+    e = w2 - v0
+    V = v0 / (1 + v0 * A)
+    r = rays[t, i][2][c]
+    return (-0.5 * np.sum((r - V * S) ** 2) / (V + e) - math.log(V + e)) - (-0.5 * np.sum(r**2) / w2 - math.log(w2))
 
 
 def _brute_force(data, params):
     """``log Σ_z p(g, z)`` and ``P(z_ti = j | g)`` by enumerating every target sequence of every person.
 
-    A glance elsewhere held from frame ``t − 1`` scatters around the previous direction.
+    A glance elsewhere held from frame ``t − 1`` scatters around the previous direction; with ``held_cone_share``
+    in ``params``, a person or concurrence held from ``t − 1`` scatters around the fixation's spot (:func:`_held_spot`).
     """
     T, P = data.present.shape
     terms, rays, log_fisher = _per_gazer(data, params)
     rho = params["stay"]
+    share = params.get("held_cone_share")
     total, marginals = 0.0, {}
     for i in range(P):
         names = list(dict.fromkeys(c for t in range(T) for c in terms[t, i]))  # every candidate of any frame
@@ -93,8 +123,10 @@ def _brute_force(data, params):
                 new = terms[t, i][c][1] if observed[t] else 0.0
                 held = new
                 if c == "e" and observed[t] and observed[t - 1]:
-                    (d1, h1), (d0, h0) = rays[t, i], rays[t - 1, i]
+                    (d1, h1, _), (d0, h0, _) = rays[t, i], rays[t - 1, i]
                     held = log_fisher(d1 @ d0, math.sqrt(h1**2 + h0**2))
+                elif c != "e" and c == seq[t - 1] and observed[t] and share is not None:
+                    held = new + _held_spot(terms, rays, observed, i, t, c, rho, share, params["cone_width"][i])
                 lp += math.log(rho * (c == seq[t - 1]) * math.exp(held) + (1 - rho) * math.exp(terms[t, i][c][0] + new))
             weights[seq] = lp
         norm = np.logaddexp.reduce(list(weights.values()))
@@ -137,6 +169,39 @@ def test_marginal_matches_brute_force_enumeration(x64):
               "alpha_object": params["alpha_object"], "speaker_effect": params["speaker_effect"],
               "stay": params["stay"],
               "concurrence_offset": (params["locations"][0] - centres[0]) / JointPrior().location_scale}
+    factor = jax.jit(lambda z: handlers.trace(handlers.substitute(_independent_residuals, z)).get_trace(*arrays)["gaze"]
+                     ["fn"].log_factor.sum())(latent)
+    assert float(factor) == pytest.approx(expected, rel=1e-10)
+
+
+def _independent_residuals(*arrays):
+    return joint_model(*arrays, prior=JointPrior(held_concentration=None))
+
+
+def test_held_spot_matches_brute_force_enumeration(x64):
+    """A fixation's spot (``held_cone_share``): the forward pass against every target and branch sequence,
+    with the spot's statistics from the earlier frames written out frame by frame; an absent frame inside."""
+    data, centres, params = _tiny(seed=7, T=4)
+    present = np.ones((4, 3), bool)
+    present[1, 0] = False
+    data = joint_data(data.eye_positions, data.R_world_from_head, data.gaze_angles, present=present,
+                      speaking=data.speaking, measurement_scale=data.measurement_scale, fps=5.0)
+    params = {**params, "stay": 0.8, "held_cone_share": 0.6}
+    # gazes close to one target for two frames in a row, so the spot's term matters
+    arrays = _arrays(data, centres, jnp.float64)
+    jparams = jax.tree_util.tree_map(jnp.asarray, params)
+    expected, _, marginals = _brute_force(data, params)
+    without, _, _ = _brute_force(data, {k: v for k, v in params.items() if k != "held_cone_share"})
+    assert abs(expected - without) > 0.1  # the spot changes the likelihood here
+    assert float(jnp.sum(_marginal_log_likelihood(jparams, arrays))) == pytest.approx(expected, rel=1e-10)
+    m = np.asarray(_target_marginals(jparams, arrays))
+    for (t, i, c), value in marginals.items():
+        if present[t, i]:  # an absent gazer's row is 0
+            assert m[t, i, _column(c, 3)] == pytest.approx(value, rel=1e-8, abs=1e-12)
+    latent = {"bias": params["bias"], "cone_width": params["cone_width"], "alpha_person": params["alpha_person"],
+              "alpha_object": params["alpha_object"], "speaker_effect": params["speaker_effect"], "stay": 0.8,
+              "held_fraction": 0.6 / MAX_HELD_CONE_SHARE,
+              "concurrence_offset": (params["locations"][0] - centres[0]) / JointPrior().location_scale}
     factor = jax.jit(lambda z: handlers.trace(handlers.substitute(joint_model, z)).get_trace(*arrays)["gaze"]["fn"]
                      .log_factor.sum())(latent)
     assert float(factor) == pytest.approx(expected, rel=1e-10)
@@ -150,7 +215,7 @@ def test_blocks_restart_the_chain(x64):
     lp = np.asarray(_candidate_log_probabilities(jparams, arrays))
     loose = float(jnp.sum(_marginal_log_likelihood({**jparams, "stay": jnp.asarray(0.0)}, arrays)))
     assert loose == pytest.approx(float(np.sum(jax.scipy.special.logsumexp(lp, axis=-1))), rel=1e-9)
-    prior, lik, d, w = (np.asarray(a) for a in jax.jit(_candidate_terms)(jparams, arrays, JointPrior()))
+    prior, lik, d, w, _ = (np.asarray(a) for a in jax.jit(_candidate_terms)(jparams, arrays, JointPrior()))
     # a glance elsewhere held over the block: its first frame's density, then each frame around the last
     held = np.asarray(cone_direction_log_density(np.sum(d[1:] * d[:-1], -1), np.sqrt(w[1:] ** 2 + w[:-1] ** 2)))
     expected = 0.0
@@ -190,7 +255,8 @@ def test_gradients_match_finite_differences(x64):
     rng = np.random.default_rng(3)
     u = {"bias": jnp.asarray(0.1 * rng.normal(size=(3, 2))), "cone_width": jnp.asarray(np.log([0.05, 0.08, 0.1])),
          "alpha_person": jnp.asarray(0.2), "alpha_object": jnp.asarray(-0.1), "speaker_effect": jnp.asarray(1.7),
-         "stay": jnp.asarray(0.8), "concurrence_offset": jnp.asarray(0.1 * rng.normal(size=(1, 3)))}
+         "stay": jnp.asarray(0.8), "held_fraction": jnp.asarray(0.3),
+         "concurrence_offset": jnp.asarray(0.1 * rng.normal(size=(1, 3)))}
     energy = jax.jit(lambda z: potential_energy(joint_model, arrays, {}, z))
     grad = jax.jit(jax.grad(energy))(u)
     flat, unravel = jax.flatten_util.ravel_pytree(u)
@@ -248,3 +314,25 @@ def test_speaking_by_name_and_windows():
     assert data.speaking[:, [0, 2]].sum() == 0
     np.testing.assert_array_equal(data.window, [0, 0, 1])
     assert data.num_windows == 2 and data.has_speech
+
+
+@pytest.mark.parametrize("share", [0.0, 0.5])
+def test_the_likelihood_finds_the_share_a_fixation_holds(share):
+    """Known truth: on conversations whose cone draws hold a share ``c`` for each fixation segment (the
+    simulator's ``held_cone_share``), the likelihood at the true biases, widths and objects is highest at that
+    share among 0, 0.25, 0.5 and 0.75 (the model before issue 37 counts such frames as independent)."""
+    from jaxgaze.simulate import ConversationConfig, simulate_conversation
+
+    scene = simulate_conversation(jax.random.key(5), num_people=5, num_objects=1, duration_s=30.0,
+                                  config=ConversationConfig(held_cone_share=share))
+    data = joint_data(scene.eye_positions, scene.R_world_from_head, scene.gaze_angles, present=scene.present,
+                      speaking=scene.speaking, measurement_scale=scene.measurement_scale, fps=scene.fps)
+    centres = np.broadcast_to(scene.object_positions, (data.num_windows,) + scene.object_positions.shape)
+    arrays = _arrays(data, centres, jnp.float32)
+    params = {"bias": jnp.asarray(scene.bias, jnp.float32), "cone_width": jnp.asarray(scene.cone_width, jnp.float32),
+              "alpha_person": jnp.float32(0.0), "alpha_object": jnp.float32(0.0), "speaker_effect": jnp.float32(1.8),
+              "stay": jnp.float32(0.9), "locations": jnp.asarray(centres, jnp.float32)}
+    shares = (0.0, 0.25, 0.5, 0.75)
+    values = [float(jnp.sum(_marginal_log_likelihood({**params, "held_cone_share": jnp.float32(c)}, arrays)))
+              for c in shares]
+    assert shares[int(np.argmax(values))] == share, values
