@@ -35,7 +35,7 @@ from jaxgaze.simulate.calibration import simulate_wearers
 
 
 def init_params(y):
-    return {"eye_center": jnp.zeros(3), "direction_raw": jnp.array([3.0, 0.0, 0.0]),
+    return {"eye_center": jnp.zeros(3), "direction_raw": jnp.array([1.0, 0.0, 0.0]),
             "bandwidth": jnp.log(0.05), "outlier_share": jax.scipy.special.logit(0.05)}
 
 

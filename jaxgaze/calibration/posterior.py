@@ -7,8 +7,10 @@ gaze cone. Instead of RANSAC plus the convex apex programme, this module puts a
 prior on the ray and samples its posterior with NUTS:
 
 * eye centre ``p ~ N(0, prior_scale² I)`` in the camera frame;
-* direction ``v = u / ‖u‖`` with ``u ~ N(e_x · direction_concentration, I)``,
-  a projected normal centred on the camera's forward axis (+x);
+* direction ``v ~ ProjectedNormal(e_x · direction_concentration)`` (the direction of
+  ``N(e_x · direction_concentration, I)``), centred on the camera's forward axis (+x);
+  it is sampled as ``v = u / ‖u‖`` with a free 3-vector ``u`` whose length, which the
+  likelihood does not see, is held near 1 (:data:`DIRECTION_RADIUS_SCALE`);
 * bandwidth ``h ~ LogNormal(log 0.03, 1)`` (radians);
 * outlier share ``ε ~ Beta(1, 9)``.
 
@@ -20,6 +22,16 @@ of ``outlier_bandwidth`` radians from the camera centre along the camera's +x
 outliers cannot pull the eye centre (a broad cone around the gaze ray itself
 would). The ``t``-dependent normaliser of the cone density is what identifies
 the eye centre along the ray: the scatter of the points grows linearly with their depth from the apex.
+
+Why the length of ``u`` is held: drawn as ``u ~ N(c e_x, I)`` (the usual way to sample a
+projected normal) its length ranges over ``c ± 2``, and the posterior of ``u`` across the ray is
+``‖u‖`` times the angular spread, a funnel. A mass matrix and step size adapted where
+``‖u‖ ≈ 3`` are several times too coarse where ``‖u‖ < 1``: a chain that strayed there at the
+end of warm-up rejected every proposal for all its draws (acceptance 0, split r-hat NaN),
+and whether it did hung on the last bit of a float32 start point. Here
+``u`` has the density ``PN(u/‖u‖) · N(‖u‖; 1, s²) / ‖u‖²``: the same projected normal prior on
+the direction (the radial factor integrates out against the ``‖u‖²`` of the volume element),
+with ``‖u‖`` within ``1 ± 4s``, so the scales across the ray change by at most that much.
 """
 
 from __future__ import annotations
@@ -36,7 +48,7 @@ from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
 from jaxgaze.calibration.cone_fit import ConeCalibration
 from jaxgaze.cone import cone_log_density
-from jaxgaze.geometry import angle_between, unit
+from jaxgaze.geometry import angle_between
 from jaxgaze._checks import bucket_size
 from jaxgaze.nuts import SamplerReport, quiet_single_chain, sample_nuts, sampler_report, set_units, split_chains
 from jaxgaze.rays import GazeRays
@@ -52,12 +64,17 @@ __all__ = [
     "needs_posterior",
     "choose_calibration",
     "MAX_EYE_OFFSET",
+    "DIRECTION_RADIUS_SCALE",
     "UNITS",
 ]
 
 #: The farthest a wearer's eye centre can plausibly be from the head-mounted camera (metres); a
 #: posterior mean beyond it is ``RESULTS.implausible``.
 MAX_EYE_OFFSET = 0.3
+#: Standard deviation ``s`` of the length of the latent direction vector ``u`` about 1 (the
+#: direction is ``u / ‖u‖``; see the module's docstring). The length is a nuisance that the data
+#: do not see; holding it near 1 keeps the posterior's scales across the ray nearly constant.
+DIRECTION_RADIUS_SCALE = 0.1
 _SUMMARY_VARS = ["eye_center", "direction", "bandwidth", "outlier_share"]
 #: Units of the posterior's variables, in their attributes (and so in the netCDF); "1": no unit.
 UNITS = {"eye_center": "m", "direction": "1", "bandwidth": "rad", "outlier_share": "1", "inlier_probability": "1",
@@ -91,8 +108,12 @@ def calibration_model(
     dtype = points.dtype
     eye_center = numpyro.sample("eye_center", dist.Normal(jnp.zeros(3, dtype), prior_scale).to_event(1))
     forward = jnp.array([direction_concentration, 0.0, 0.0], dtype)
-    raw = numpyro.sample("direction_raw", dist.Normal(forward, 1.0).to_event(1))
-    direction = numpyro.deterministic("direction", unit(raw))
+    # v ~ ProjectedNormal(forward), through u with density PN(u/‖u‖) N(‖u‖; 1, s²) / ‖u‖² (module docstring).
+    raw = numpyro.sample("direction_raw", dist.ImproperUniform(dist.constraints.real_vector, (), (3,)))
+    radius = jnp.linalg.norm(raw)
+    direction = numpyro.deterministic("direction", raw / radius)
+    numpyro.factor("direction_prior", dist.ProjectedNormal(forward).log_prob(direction)
+                   - 0.5 * jnp.square((radius - 1.0) / DIRECTION_RADIUS_SCALE) - 2.0 * jnp.log(radius))
     bandwidth = numpyro.sample("bandwidth", dist.LogNormal(jnp.log(0.03), 1.0))
     outlier_share = numpyro.sample("outlier_share", dist.Beta(1.0, 9.0))
 
@@ -354,7 +375,6 @@ def _fit(ys, key, num_warmup, num_samples, num_chains, init_eye, init_dir, progr
 
     if num_chains < 1:
         raise ValueError(f"num_chains must be at least 1, got {num_chains}")
-    concentration = model_options.get("direction_concentration", 3.0)
     num_wearers = len(ys)
     length = bucket_size(max(len(y) for y in ys), minimum=64, multiple=64)
     dtype = jnp.zeros(()).dtype
@@ -369,7 +389,7 @@ def _fit(ys, key, num_warmup, num_samples, num_chains, init_eye, init_dir, progr
     # Starting point in numpyro's unconstrained space (log h, logit ε); chains of a wearer are adjacent.
     init = {
         "eye_center": start_eye,
-        "direction_raw": start_dir * concentration,
+        "direction_raw": start_dir,  # ‖u‖ = 1, where its prior holds it
         "bandwidth": np.full(num_wearers, np.log(0.05)),
         "outlier_share": np.full(num_wearers, float(jax.scipy.special.logit(0.05))),
     }
