@@ -150,7 +150,7 @@ def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: 
         held["calibration_outlier_share"] = jax.nn.sigmoid(kept["calibration_outlier_share"])
     coupled = {k: v for k, v in start.items() if k in ("coupling", "head_lag", "held_fraction")}  # profile's, start's
     free = {k: v for k, v in start.items() if k not in kept and k not in coupled and k != "stay"}
-    independent = handlers.condition(_model(prior, None), {
+    independent = handlers.condition(_model(prior._replace(held_concentration=None), None), {  # no spot to hold
         **held, "stay": jnp.asarray(1e-6, arrays.gaze_angles.dtype), **rivals.constrained(coupled)})
     free = {**_descend(independent, free, arrays), "stay": start["stay"], **coupled}
     if not to_mode:
