@@ -15,7 +15,9 @@ coverage with fewer scenes), the median bias error, the result codes.
 Usage::
 
     python experiments/joint_bias_coverage.py [--scenes 12] [--shares 0 0.5] [--people 5 5] [--duration 30]
-        [--warmup 300] [--draws 300] [--cache out.json] [--part I/N]
+        [--warmup 300] [--draws 300] [--spots] [--cache out.json] [--part I/N]
+
+``--spots`` fits the model with a fixation's spot (``JointPrior(held_concentration=(1.0, 2.0))``).
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ import jax
 import numpy as np
 
 from _runs import read_caches, write_cache
-from jaxgaze.joint import fit_joint, joint_data
+from jaxgaze.joint import JointPrior, fit_joint, joint_data
 from jaxgaze.results import name
 from jaxgaze.simulate import ConversationConfig, simulate_conversation
 
@@ -40,7 +42,7 @@ def _wrapped(d):
     return d
 
 
-def evaluate_scene(key, share, people, duration_s, warmup, draws):
+def evaluate_scene(key, share, people, duration_s, warmup, draws, prior=JointPrior()):
     k_scene, k_fit = jax.random.split(key)
     P = int(jax.random.randint(k_scene, (), people[0], people[1] + 1))
     scene = simulate_conversation(k_scene, num_people=P, duration_s=duration_s,
@@ -48,7 +50,7 @@ def evaluate_scene(key, share, people, duration_s, warmup, draws):
     data = joint_data(scene.eye_positions, scene.R_world_from_head, scene.gaze_angles, present=scene.present,
                       speaking=scene.speaking, measurement_scale=scene.measurement_scale, fps=scene.fps)
     t0 = time.time()
-    post = fit_joint(data, key=k_fit, num_warmup=warmup, num_samples=draws)
+    post = fit_joint(data, key=k_fit, num_warmup=warmup, num_samples=draws, prior=prior)
     seconds = time.time() - t0
     draws_b = post.samples["bias"]  # (S, P, 2)
     error = _wrapped(draws_b.mean(0) - scene.bias)
@@ -84,6 +86,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--warmup", type=int, default=300)
     parser.add_argument("--draws", type=int, default=300)
     parser.add_argument("--seed", type=int, default=375)
+    parser.add_argument("--spots", action="store_true",
+                        help="fit with a fixation's spot (JointPrior(held_concentration=(1, 2)), issue 37 item 5)")
     parser.add_argument("--cache", action="append", default=[],
                         help="JSON file of per-scene results (resumes; written to the first, all are read)")
     parser.add_argument("--part", default="0/1", help="I/N: only the runs whose index is I modulo N")
@@ -96,7 +100,8 @@ def main(argv=None) -> dict:
         label = f"{share:g}/{i}"
         if label in done or n % parts != part:
             continue
-        done[label] = evaluate_scene(keys[i], share, args.people, args.duration, args.warmup, args.draws)
+        done[label] = evaluate_scene(keys[i], share, args.people, args.duration, args.warmup, args.draws,
+                                     JointPrior(held_concentration=(1.0, 2.0)) if args.spots else JointPrior())
         if os.path.exists("/proc/self/maps") and sum(1 for _ in open("/proc/self/maps")) > 30_000:
             jax.clear_caches()  # each shape compiles its own programs: the process's memory maps would run out
         r = done[label]

@@ -27,11 +27,12 @@ target of the previous frame is kept, otherwise it is drawn afresh from ``π_t``
 Given the target ``x``, ``d_ti`` scatters around ``u = unit(x − p_ti)`` as Park's
 cone with width ``w_ti = √(h_i² + σ_ti²)`` (``σ`` the optional per-frame
 measurement sd). Through a fixation the eyes rest on one spot of the target, so the
-residuals of one fixation are correlated: a share ``c`` (``held_cone_share``, learnt,
-at most :data:`MAX_HELD_CONE_SHARE`) of the cone's variance is an offset drawn when the
-target is chosen and held while it is kept (:func:`_held_spot`); each frame's marginal is
-still the cone of width ``w``. Frames counted as independent made the 90% bias
-intervals cover 0.48 on recordings with ``c = 0.5`` (issue 37, item 5). ``z`` is summed
+residuals of one fixation are correlated. With ``JointPrior(held_concentration=(1.0, 2.0))``
+a share ``c`` (``held_cone_share``, learnt, at most :data:`MAX_HELD_CONE_SHARE`) of the
+cone's variance is an offset drawn when the target is chosen and held while it is kept
+(:func:`_held_spot`); each frame's marginal is still the cone of width ``w``. Frames
+counted as independent made the 90% bias intervals cover 0.48 on recordings with
+``c = 0.5``; with the spot 0.875 (issue 37, item 5). ``z`` is summed
 out exactly by the forward algorithm, ``O(C)`` per frame and person for this transition. The chain restarts from ``π`` every
 :data:`BLOCK_FRAMES` frames: the blocks are independent, run in parallel, and
 are what SVI subsamples. A frame where the gazer is absent moves the chain on
@@ -121,9 +122,11 @@ class JointPrior(NamedTuple):
             of sight the head turns (head pose only; most people turn 0.3–1).
         head_lag_scale: scale (seconds) of the half-normal prior of ``τ``, the head's lag
             behind the eyes (head pose only).
-        held_concentration: ``(a, b)`` of the Beta prior of ``c / MAX_HELD_CONE_SHARE``, ``c`` the share of
-            the cone's variance that a fixation's spot holds (:func:`_held_spot`); ``None`` for ``c = 0``
-            (every frame's residual independent given its target, the model before issue 37).
+        held_concentration: ``None`` (the default): every frame's residual is independent given its
+            target. ``(a, b)``, e.g. ``(1.0, 2.0)``: a fixation's spot (:func:`_held_spot`), with
+            ``c / MAX_HELD_CONE_SHARE ~ Beta(a, b)``, ``c`` the share of the cone's variance it holds.
+            Not yet the default: on a 10-s, 3-person recording it let two biases run 100° off (the fit
+            said so: ``not_mixed``), and it costs 1.6× the sampling time (``benchmarks/RESULTS.md``).
     """
 
     bias_scale: float = 0.25
@@ -139,7 +142,7 @@ class JointPrior(NamedTuple):
     stay_concentration: tuple[float, float] = (2.0, 1.0)
     coupling_concentration: tuple[float, float] = (3.0, 2.0)
     head_lag_scale: float = 0.4
-    held_concentration: tuple[float, float] | None = (1.0, 2.0)
+    held_concentration: tuple[float, float] | None = None
 
 
 class ModelArrays(NamedTuple):

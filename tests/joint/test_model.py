@@ -169,13 +169,17 @@ def test_marginal_matches_brute_force_enumeration(x64):
               "alpha_object": params["alpha_object"], "speaker_effect": params["speaker_effect"],
               "stay": params["stay"],
               "concurrence_offset": (params["locations"][0] - centres[0]) / JointPrior().location_scale}
-    factor = jax.jit(lambda z: handlers.trace(handlers.substitute(_independent_residuals, z)).get_trace(*arrays)["gaze"]
-                     ["fn"].log_factor.sum())(latent)
+    factor = jax.jit(lambda z: handlers.trace(handlers.substitute(joint_model, z)).get_trace(*arrays)["gaze"]["fn"]
+                     .log_factor.sum())(latent)
     assert float(factor) == pytest.approx(expected, rel=1e-10)
 
 
-def _independent_residuals(*arrays):
-    return joint_model(*arrays, prior=JointPrior(held_concentration=None))
+def _with_spots(*arrays):
+    return joint_model(*arrays, prior=SPOTS)
+
+
+#: The prior with a fixation's spot (``held_cone_share`` learnt).
+SPOTS = JointPrior(held_concentration=(1.0, 2.0))
 
 
 def test_held_spot_matches_brute_force_enumeration(x64):
@@ -202,7 +206,7 @@ def test_held_spot_matches_brute_force_enumeration(x64):
               "alpha_object": params["alpha_object"], "speaker_effect": params["speaker_effect"], "stay": 0.8,
               "held_fraction": 0.6 / MAX_HELD_CONE_SHARE,
               "concurrence_offset": (params["locations"][0] - centres[0]) / JointPrior().location_scale}
-    factor = jax.jit(lambda z: handlers.trace(handlers.substitute(joint_model, z)).get_trace(*arrays)["gaze"]["fn"]
+    factor = jax.jit(lambda z: handlers.trace(handlers.substitute(_with_spots, z)).get_trace(*arrays)["gaze"]["fn"]
                      .log_factor.sum())(latent)
     assert float(factor) == pytest.approx(expected, rel=1e-10)
 
@@ -257,7 +261,7 @@ def test_gradients_match_finite_differences(x64):
          "alpha_person": jnp.asarray(0.2), "alpha_object": jnp.asarray(-0.1), "speaker_effect": jnp.asarray(1.7),
          "stay": jnp.asarray(0.8), "held_fraction": jnp.asarray(0.3),
          "concurrence_offset": jnp.asarray(0.1 * rng.normal(size=(1, 3)))}
-    energy = jax.jit(lambda z: potential_energy(joint_model, arrays, {}, z))
+    energy = jax.jit(lambda z: potential_energy(_with_spots, arrays, {}, z))
     grad = jax.jit(jax.grad(energy))(u)
     flat, unravel = jax.flatten_util.ravel_pytree(u)
     g, _ = jax.flatten_util.ravel_pytree(grad)
