@@ -18,7 +18,7 @@ takes the person nearest to the head's forward ray:
 Usage::
 
     python experiments/joint_head_only.py [--scenes 30] [--people 3 8] [--duration 60] [--warmup 300]
-        [--draws 300] [--seed 38] [--compare] [--cache out.json] [--part I/N]
+        [--draws 300] [--seed 38] [--compare] [--spots] [--cache out.json] [--part I/N]
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import jax
 import numpy as np
 
 from _runs import confidently_wrong, distance_sd, read_caches, write_cache
-from jaxgaze.joint import expected_calibration_error, fit_joint, joint_data
+from jaxgaze.joint import JointPrior, expected_calibration_error, fit_joint, joint_data
 from jaxgaze.results import name
 from jaxgaze.simulate import simulate_conversation
 
@@ -46,14 +46,14 @@ def _nearest_to_head_ray(data) -> np.ndarray:
     return np.where(others, cosine, -2.0).argmax(-1)
 
 
-def evaluate_scene(key, people, duration_s, warmup, draws, compare):
+def evaluate_scene(key, people, duration_s, warmup, draws, compare, prior=JointPrior()):
     k_scene, k_fit = jax.random.split(key)
     P = int(jax.random.randint(k_scene, (), people[0], people[1] + 1))
     scene = simulate_conversation(k_scene, num_people=P, duration_s=duration_s)
     data = joint_data(scene.eye_positions, scene.R_world_from_head, None, present=scene.present,
                       speaking=scene.speaking, fps=scene.fps)
     t0 = time.time()
-    post = fit_joint(data, key=k_fit, num_warmup=warmup, num_samples=draws)
+    post = fit_joint(data, key=k_fit, num_warmup=warmup, num_samples=draws, prior=prior)
     seconds = time.time() - t0
     target = np.asarray(scene.target)
     at_person = data.present & (target >= 0) & (target < P)
@@ -129,6 +129,8 @@ def main() -> None:
     parser.add_argument("--draws", type=int, default=300)
     parser.add_argument("--seed", type=int, default=38)
     parser.add_argument("--compare", action="store_true", help="also fit each scene with its gaze measured")
+    parser.add_argument("--spots", action="store_true",
+                        help="fit with a fixation's spot (JointPrior(held_concentration=(1, 2)), issue 37 item 5)")
     parser.add_argument("--cache", action="append", default=[], help="JSON file(s) of per-scene results (resumes; "
                         "the last one is written)")
     parser.add_argument("--part", default="0/1", help="I/N: only the scenes whose index is I modulo N")
@@ -139,7 +141,8 @@ def main() -> None:
     for i in range(args.scenes):
         if str(i) in done or i % parts != part:
             continue
-        done[str(i)] = evaluate_scene(keys[i], args.people, args.duration, args.warmup, args.draws, args.compare)
+        done[str(i)] = evaluate_scene(keys[i], args.people, args.duration, args.warmup, args.draws, args.compare,
+                                      JointPrior(held_concentration=(1.0, 2.0)) if args.spots else JointPrior())
         r = done[str(i)]
         print(f"scene {i}: {r['people']} people, {r['result']}, right {r['right'] / max(r['at_person'], 1):.3f} "
               f"(baseline {r['baseline_right'] / max(r['at_person'], 1):.3f}), max |kappa error| "
