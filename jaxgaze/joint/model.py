@@ -127,6 +127,7 @@ class JointPrior(NamedTuple):
             ``c / MAX_HELD_CONE_SHARE ~ Beta(a, b)``, ``c`` the share of the cone's variance it holds.
             Not yet the default: on a 10-s, 3-person recording it let two biases run 100° off (the fit
             said so: ``not_mixed``), and it costs 1.6× the sampling time (``benchmarks/RESULTS.md``).
+            Refused with head pose only, where the couplings ran away (``fit_joint`` raises).
     """
 
     bias_scale: float = 0.25
