@@ -143,7 +143,8 @@ def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: 
     eyes held, NUTS drifts to the eyes' far mode.
 
     The second descent is :func:`_to_mode`'s program, compiled once for the start, the
-    pruning and the rival search (in one program with the first it compiled anew: 7–11 s a fit).
+    pruning and the rival search (inside one program with the first, it was a second BFGS
+    program to compile; the saving was not timed alone).
     """
     values = _independent_mode(start, arrays, prior)
     return _to_mode(values, arrays, prior) if to_mode else values
