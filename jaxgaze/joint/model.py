@@ -89,8 +89,6 @@ UNIT_SITES = ("stay", "calibration_outlier_share", "coupling", "held_fraction")
 MAX_HELD_CONE_SHARE = 0.8
 #: Frames per block of the target chain (it restarts from the prior at each block).
 BLOCK_FRAMES = 64
-#: Frames of a block's scans unrolled into one step: XLA:CPU pays per step, and a step's work is small.
-_UNROLL = 1
 # Impossible candidates (oneself, an absent person) enter the forward pass at this log
 # weight instead of −inf, so that no gradient is NaN.
 _LOG_FLOOR = -1e4
@@ -411,7 +409,7 @@ def _forward(log_prior, log_lik, held, observed, stay, shift=None):
     first = jnp.arange(log_prior.shape[1]) == 0
     swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
     _, norms = jax.lax.scan(step, jnp.zeros_like(log_prior[:, 0]),
-                            (swap(log_prior), swap(log_lik), swap(held), first), unroll=_UNROLL)
+                            (swap(log_prior), swap(log_lik), swap(held), first))
     return jnp.sum(norms, axis=0)
 
 
@@ -448,7 +446,7 @@ def _held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_varian
 
     swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
     weighed = inv_e[..., None, None] * jnp.concatenate([jnp.ones_like(r[..., :1]), r], axis=-1)  # (1/e, r/e)
-    _, totals = jax.lax.scan(step, jnp.zeros_like(weighed[:, 0]), (swap(weighed), swap(decay)), unroll=_UNROLL)
+    _, totals = jax.lax.scan(step, jnp.zeros_like(weighed[:, 0]), (swap(weighed), swap(decay)))
     totals = swap(totals)
     A, S = totals[..., 0], totals[..., 1:]
     V = spot_variance[:, None] / (1.0 + spot_variance[:, None] * A)
