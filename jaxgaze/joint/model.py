@@ -452,8 +452,11 @@ def _held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_varian
     V = spot_variance[:, None] / (1.0 + spot_variance[:, None] * A)
     spread = V + e[..., None]  # (B, L, P, C')
     miss = jnp.sum(jnp.square(r - V[..., None] * S), axis=-1)
-    held = (-0.5 * miss / spread - jnp.log(spread)) - (-0.5 * jnp.sum(jnp.square(r), axis=-1) / w2[..., None]
-                                                        - jnp.log(w2)[..., None])
+    held_density = -0.5 * miss / spread - jnp.log(spread)
+    new_density = -0.5 * jnp.sum(jnp.square(r), axis=-1) / w2[..., None] - jnp.log(w2)[..., None]
+    # Both floored as _forward floors the emission: with only the new glance's density unfloored, a residual far
+    # outside a narrowing cone raised the held frame without bound (the potential reached -1e13 as h -> 0).
+    held = jnp.maximum(held_density, _LOG_FLOOR) - jnp.maximum(new_density, _LOG_FLOOR)
     return jnp.where(observed[..., None], held, 0.0)
 
 

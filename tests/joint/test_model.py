@@ -211,6 +211,23 @@ def test_held_spot_matches_brute_force_enumeration(x64):
     assert float(factor) == pytest.approx(expected, rel=1e-10)
 
 
+def test_held_spot_stays_bounded_as_the_cone_narrows(x64):
+    """A cone far narrower than the residuals makes every emission floored; the spot's held frames must not gain
+    from it (they once subtracted an unfloored density: the likelihood grew without bound as ``h → 0`` and a fit
+    sent the cone widths to 0 and the biases hundreds of degrees off)."""
+    data, centres, params = _tiny(seed=7, T=6)
+    gaze = data.gaze_angles.copy()  # person 0 holds one point 1 rad from where they face, 1 mrad of scatter
+    gaze[:, 0] = [1.0, 0.2] + 1e-3 * np.random.default_rng(0).standard_normal((6, 2))
+    data = joint_data(data.eye_positions, data.R_world_from_head, gaze, speaking=data.speaking, fps=5.0)  # w = h
+    arrays = _arrays(data, centres, jnp.float64)
+    values = []
+    for width in (0.05, 1e-3, 1e-5):
+        p = {**jax.tree_util.tree_map(jnp.asarray, params), "stay": jnp.asarray(0.99),
+             "held_cone_share": jnp.asarray(MAX_HELD_CONE_SHARE), "cone_width": jnp.full(3, width)}
+        values.append(float(jnp.sum(_marginal_log_likelihood(p, arrays))))
+    assert np.all(np.isfinite(values)) and values[0] > values[1] >= values[2], values
+
+
 def test_blocks_restart_the_chain(x64):
     """Two closed forms over two blocks (T = 70 > BLOCK_FRAMES): ρ = 0 is independent frames, ρ = 1 one target per block."""
     data, centres, params = _tiny(seed=5, T=BLOCK_FRAMES + 6)
