@@ -10,6 +10,11 @@ import os
 
 import numpy as np
 
+from jaxgaze.joint import JointPrior
+
+#: The joint model with a fixation's spot (issue 37, item 5; opt-in): what every experiment's ``--spots`` fits.
+SPOTS = JointPrior(held_concentration=(1.0, 2.0))
+
 
 def distance_sd(draws, truth) -> np.ndarray:
     """``(P,)``: the distance of each true bias from its posterior draws ``(S, P, 2)``, in posterior sd (Mahalanobis)."""

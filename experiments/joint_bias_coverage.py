@@ -30,7 +30,7 @@ import time
 import jax
 import numpy as np
 
-from _runs import read_caches, write_cache
+from _runs import SPOTS, read_caches, write_cache
 from jaxgaze.joint import JointPrior, fit_joint, joint_data
 from jaxgaze.results import name
 from jaxgaze.simulate import ConversationConfig, simulate_conversation
@@ -101,7 +101,7 @@ def main(argv=None) -> dict:
         if label in done or n % parts != part:
             continue
         done[label] = evaluate_scene(keys[i], share, args.people, args.duration, args.warmup, args.draws,
-                                     JointPrior(held_concentration=(1.0, 2.0)) if args.spots else JointPrior())
+                                     SPOTS if args.spots else JointPrior())
         if os.path.exists("/proc/self/maps") and sum(1 for _ in open("/proc/self/maps")) > 30_000:
             jax.clear_caches()  # each shape compiles its own programs: the process's memory maps would run out
         r = done[label]

@@ -19,7 +19,10 @@ and object locations.
 
 Usage::
 
-    python experiments/joint_conversation.py [--scenes 30] [--warmup 500] [--draws 500] [--cache out.json] [--part I/N]
+    python experiments/joint_conversation.py [--scenes 30] [--warmup 500] [--draws 500] [--spots] [--cache out.json]
+        [--part I/N]
+
+``--spots`` fits the joint model with a fixation's spot (``_runs.SPOTS``; issue 37, item 5).
 
 With ``--part I/N`` a process fits only the scenes whose index is I modulo N (one process per core, each with its
 own ``--cache``); ``--cache`` may be given several times, and the table is printed once every scene has a result.
@@ -34,11 +37,11 @@ import time
 import jax
 import numpy as np
 
-from _runs import confidently_wrong, distance_sd, read_caches, write_cache
+from _runs import SPOTS, confidently_wrong, distance_sd, read_caches, write_cache
 from jaxgaze.bias import gaze_offsets, target_direction_head
 from jaxgaze.bias.looking import gaze_angles_to_direction, head_to_world
 from jaxgaze.concurrence import find_concurrences_over_frames
-from jaxgaze.joint import (JointStart, expected_calibration_error, fit_joint, joint_data, nearest_target,
+from jaxgaze.joint import (JointPrior, JointStart, expected_calibration_error, fit_joint, joint_data, nearest_target,
                            ray_intersection)
 from jaxgaze.joint.init import DEFAULT_CONCURRENCE_OPTIONS, corrected_rays, initial_concurrences, speaker_rule_bias
 from jaxgaze.results import name, succeeded
@@ -104,7 +107,7 @@ def _angle_error_deg(a, b):
                                               -1), axis=-1))
 
 
-def evaluate_scene(scene, key, warmup, draws):
+def evaluate_scene(scene, key, warmup, draws, prior=JointPrior()):
     k_spk, k_gt, k_fit = jax.random.split(key, 3)
     data = joint_data(scene.eye_positions, scene.R_world_from_head, scene.gaze_angles, present=scene.present,
                       speaking=scene.speaking, measurement_scale=scene.measurement_scale, fps=scene.fps)
@@ -141,7 +144,7 @@ def evaluate_scene(scene, key, warmup, draws):
     stride = max(1, data.num_frames // 300)
     centres, support = initial_concurrences(data, rays, stride=stride)
     start = JointStart(spk_bias, used, centres, support)
-    post = fit_joint(data, key=k_fit, num_warmup=warmup, num_samples=draws, start=start)
+    post = fit_joint(data, key=k_fit, num_warmup=warmup, num_samples=draws, start=start, prior=prior)
     seconds = time.time() - t0
     slots = post.concurrence_locations()
     K = post.num_concurrences
@@ -247,6 +250,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--cache", action="append", default=[],
                         help="JSON file of per-scene results (resumes; written to the first, all are read)")
     parser.add_argument("--part", default="0/1", help="I/N: only the scenes whose index is I modulo N")
+    parser.add_argument("--spots", action="store_true", help="a fixation's spot (JointPrior.held_concentration)")
     args = parser.parse_args(argv)
     scenes = simulate_conversations(jax.random.key(args.seed), args.scenes)
     keys = jax.random.split(jax.random.key(args.seed + 1), args.scenes)
@@ -256,7 +260,7 @@ def main(argv=None) -> dict:
         if i in done or i % parts != part:
             continue
         t0 = time.time()
-        done[i] = evaluate_scene(scene, keys[i], args.warmup, args.draws)
+        done[i] = evaluate_scene(scene, keys[i], args.warmup, args.draws, SPOTS if args.spots else JointPrior())
         jax.clear_caches()  # each scene's shapes compile their own programs (the process's memory maps run out)
         print(f"scene {i}: {scene.num_people} people, {scene.num_objects} objects, {time.time() - t0:.0f} s; "
               f"joint acc {done[i]['joint']['accuracy']:.3f} vs Spk {done[i]['pipeline, Spk-LMedS']['accuracy']:.3f}",

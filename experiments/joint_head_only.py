@@ -29,7 +29,7 @@ import time
 import jax
 import numpy as np
 
-from _runs import confidently_wrong, distance_sd, read_caches, write_cache
+from _runs import SPOTS, confidently_wrong, distance_sd, read_caches, write_cache
 from jaxgaze.joint import JointPrior, expected_calibration_error, fit_joint, joint_data
 from jaxgaze.results import name
 from jaxgaze.simulate import simulate_conversation
@@ -142,7 +142,7 @@ def main() -> None:
         if str(i) in done or i % parts != part:
             continue
         done[str(i)] = evaluate_scene(keys[i], args.people, args.duration, args.warmup, args.draws, args.compare,
-                                      JointPrior(held_concentration=(1.0, 2.0)) if args.spots else JointPrior())
+                                      SPOTS if args.spots else JointPrior())
         r = done[str(i)]
         print(f"scene {i}: {r['people']} people, {r['result']}, right {r['right'] / max(r['at_person'], 1):.3f} "
               f"(baseline {r['baseline_right'] / max(r['at_person'], 1):.3f}), max |kappa error| "

@@ -19,7 +19,9 @@ the fit says ``ambiguous`` or ``not_mixed``.
 
 Usage::
 
-    python experiments/joint_rivals.py [--scenes 30] [--warmup 500] [--draws 500] [--duration 60] [--method nuts|svi] [--search on|off] [--cache out.json] [--part I/N]
+    python experiments/joint_rivals.py [--scenes 30] [--warmup 500] [--draws 500] [--duration 60] [--method nuts|svi] [--search on|off] [--spots] [--cache out.json] [--part I/N]
+
+``--spots`` fits the model with a fixation's spot (``_runs.SPOTS``; issue 37, item 5).
 """
 
 from __future__ import annotations
@@ -31,8 +33,8 @@ import time
 import jax
 import numpy as np
 
-from _runs import confidently_wrong, distance_sd, read_caches, write_cache
-from jaxgaze.joint import fit_joint, infer, joint_data, joint_start, rivals
+from _runs import SPOTS, confidently_wrong, distance_sd, read_caches, write_cache
+from jaxgaze.joint import JointPrior, fit_joint, infer, joint_data, joint_start, rivals
 from jaxgaze.results import name
 from jaxgaze.simulate import simulate_conversation
 from jaxgaze.simulate.rivals import RIVAL_CONFIG, rival_bias
@@ -44,9 +46,10 @@ def _errors_deg(estimate, truth):
     return np.degrees(np.linalg.norm(d, axis=-1))
 
 
-def _fit(data, scene, start, key, warmup, draws, method="nuts"):
+def _fit(data, scene, start, key, warmup, draws, method="nuts", prior=JointPrior()):
     t0 = time.time()
-    post = fit_joint(data, key=key, method=method, num_warmup=warmup, num_samples=draws, num_steps=300, start=start)
+    post = fit_joint(data, key=key, method=method, num_warmup=warmup, num_samples=draws, num_steps=300, start=start,
+                     prior=prior)
     seconds = time.time() - t0
     error = _errors_deg(post.bias, scene.bias)
     distance = distance_sd(post.samples["bias"], scene.bias)
@@ -61,7 +64,7 @@ def _fit(data, scene, start, key, warmup, draws, method="nuts"):
                              for a in post.alternatives]}
 
 
-def evaluate_scene(key, warmup, draws, duration_s=60.0, method="nuts"):
+def evaluate_scene(key, warmup, draws, duration_s=60.0, method="nuts", prior=JointPrior()):
     k_scene, k_start, k_fit = jax.random.split(key, 3)
     scene = simulate_conversation(k_scene, duration_s=duration_s, config=RIVAL_CONFIG)
     P = scene.num_people
@@ -73,8 +76,8 @@ def evaluate_scene(key, warmup, draws, duration_s=60.0, method="nuts"):
     bias = start.bias.copy()
     bias[person] = rival.bias
     return {"people": P, "rival_person": person, "rival_shift_deg": rival.shift_deg,
-            "pipeline": _fit(data, scene, start, k_fit, warmup, draws, method),
-            "rival": _fit(data, scene, start._replace(bias=bias), k_fit, warmup, draws, method)}
+            "pipeline": _fit(data, scene, start, k_fit, warmup, draws, method, prior),
+            "rival": _fit(data, scene, start._replace(bias=bias), k_fit, warmup, draws, method, prior)}
 
 
 def _summary(results):
@@ -105,6 +108,7 @@ def main(argv=None) -> dict:
                         help="svi: 300 steps, a mean-field posterior (narrower than NUTS's: a stricter test of "
                              "'confidently wrong')")
     parser.add_argument("--search", choices=("on", "off"), default="on")
+    parser.add_argument("--spots", action="store_true", help="a fixation's spot (JointPrior.held_concentration)")
     parser.add_argument("--cache", default=None, help="JSON file of per-scene results (resumes)")
     parser.add_argument("--part", default="0/1", help="I/N: only the scenes whose index is I modulo N (one "
                         "process per core, each with its own --cache; merge the caches and run again to summarise)")
@@ -120,7 +124,8 @@ def main(argv=None) -> dict:
         if i in done or i % parts != part:
             continue
         t0 = time.time()
-        done[i] = evaluate_scene(keys[i], args.warmup, args.draws, args.duration, args.method)
+        done[i] = evaluate_scene(keys[i], args.warmup, args.draws, args.duration, args.method,
+                                 SPOTS if args.spots else JointPrior())
         jax.clear_caches()  # each scene's shapes compile their own programs: 6.7 GB after 28 scenes otherwise
         r = done[i]
         print(f"scene {i}: {r['people']} people, rival {r['rival_shift_deg']:.0f}° for person {r['rival_person']}; "

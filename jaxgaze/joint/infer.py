@@ -654,10 +654,6 @@ def fit_joint(
                                 ("frames_per_step", frames_per_step, 1)):
         if int(value) != value or value < least:
             raise ValueError(f"{label} must be an integer ≥ {least}, got {value!r}")
-    if prior.held_concentration is not None and data.head_motion is not None:
-        raise ValueError("JointPrior.held_concentration (a fixation's spot) does not work with head pose only yet: on "
-                         "4 simulated meetings it sent 66-83% of the gazes at people to the wrong target (issue 37); "
-                         "leave it None")
     k_start, k_fit, k_draws, k_check = jax.random.split(key, 4)
     start = joint_start(data, key=k_start, progress=progress) if start is None else start
     if start.concurrence_centres.shape[0] != data.num_windows:

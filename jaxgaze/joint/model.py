@@ -92,6 +92,9 @@ BLOCK_FRAMES = 64
 # Impossible candidates (oneself, an absent person) enter the forward pass at this log
 # weight instead of −inf, so that no gradient is NaN.
 _LOG_FLOOR = -1e4
+# The forward pass's bounds on probabilities scaled by a frame's best new target (:func:`_forward`).
+_HELD_CAP = 60.0
+_NORM_FLOOR = math.exp(-60.0)
 
 
 class JointPrior(NamedTuple):
@@ -123,9 +126,8 @@ class JointPrior(NamedTuple):
         held_concentration: ``None`` (the default): every frame's residual is independent given its
             target. ``(a, b)``, e.g. ``(1.0, 2.0)``: a fixation's spot (:func:`_held_spot`), with
             ``c / MAX_HELD_CONE_SHARE ~ Beta(a, b)``, ``c`` the share of the cone's variance it holds.
-            Not yet the default: on a 10-s, 3-person recording it let two biases run 100° off (the fit
-            said so: ``not_mixed``), and it costs 1.6× the sampling time (``benchmarks/RESULTS.md``).
-            Refused with head pose only, where the couplings ran away (``fit_joint`` raises).
+            Gaze measured or head pose only. Not yet the default: it costs about 1.9× the sampling
+            time (``benchmarks/RESULTS.md``).
     """
 
     bias_scale: float = 0.25
@@ -383,12 +385,20 @@ def _held_elsewhere(log_lik, directions, width, observed):
 def _forward(log_prior, log_lik, held, observed, stay, shift=None):
     """The forward algorithm of the sticky chain on blocks: ``(B, L, P, C)`` inputs, returns ``log p (B, P)``.
 
-    ``a_t = log p(z_t, g_{≤t}) − log p(g_{<t})``; a new block starts from ``π``, then
-    ``a_t(j) = logaddexp(log ρ + a_{t−1}(j) + η_t(j), log(1 − ρ) + log π_t(j)) + log p(g_t | j)``,
-    the emission only where ``observed`` and ``η`` the held term: of a glance elsewhere
-    (:func:`_held_elsewhere`, ``(…, 1)``: 0 for the other candidates) or of every candidate
-    (``(…, C)``, with :func:`_held_spot`). The gradient with respect to
-    ``shift``, added to every emission, is the posterior ``P(z_t = j | g)``.
+    ``α_t(j) = p(z_t = j | g_{≤t})``; a new block starts from ``π``, then
+    ``α_t(j) ∝ (ρ α_{t−1}(j) e^{η_t(j)} + (1 − ρ) π_t(j)) p(g_t | j)``, the emission only where
+    ``observed`` and ``η`` the held term: of a glance elsewhere (:func:`_held_elsewhere`, ``(…, 1)``: 0 for
+    the other candidates) or of every candidate (``(…, C)``, with :func:`_held_spot`); ``log p`` sums the
+    log normalisers. The gradient with respect to ``shift``, added to every emission, is the posterior
+    ``P(z_t = j | g)``.
+
+    The recursion runs on probabilities, each frame's terms scaled by the largest new-target term
+    ``m_t = max_j log π_t(j) p(g_t | j)``, so the sequential step is a multiply-add and a sum: in logs
+    (``logaddexp``, ``logsumexp`` in the step) value and gradient took 1.44 ms against 0.53 ms here
+    (60 s × 6 people, one core; ``benchmarks/RESULTS.md``). A held term more than ``e^{60}`` above
+    ``m_t`` is capped there (no overflow; such a frame is ``e^{60}`` times likelier kept than anything new),
+    and a frame's normaliser is floored at ``e^{−60}`` times ``e^{m_t}`` (it only reaches it with ``ρ``
+    rounded to 1, where the logs held every path's weight).
     """
     log_prior = jnp.maximum(log_prior, _LOG_FLOOR)
     log_lik = jnp.maximum(log_lik, _LOG_FLOOR)
@@ -397,20 +407,21 @@ def _forward(log_prior, log_lik, held, observed, stay, shift=None):
     log_lik = jnp.where(observed[..., None], log_lik, 0.0)
     if held.shape[-1] == 1:  # elsewhere's term only
         held = jnp.zeros_like(log_lik).at[..., -1:].set(held)
-    log_stay, log_switch = jnp.log(stay), jnp.log1p(-stay)
+    new = log_prior + log_lik
+    top = jax.lax.stop_gradient(jnp.max(new, axis=-1, keepdims=True))
+    first = (jnp.arange(log_prior.shape[1]) == 0)[None, :, None, None]
+    new = jnp.exp(new - top) * jnp.where(first, 1.0, 1.0 - stay)
+    kept = jnp.where(first, 0.0, stay * jnp.exp(jnp.minimum(log_lik + held - top, _HELD_CAP)))
 
-    def step(a, x):
-        prior_t, lik_t, held_t, first = x
-        predicted = jnp.where(first, prior_t, jnp.logaddexp(log_stay + a + held_t, log_switch + prior_t))
-        joint = predicted + lik_t
-        norm = logsumexp(joint, axis=-1, keepdims=True)
-        return joint - norm, norm[..., 0]
+    def step(alpha, x):
+        new_t, kept_t = x
+        joint = kept_t * alpha + new_t
+        norm = jnp.maximum(jnp.sum(joint, axis=-1, keepdims=True), _NORM_FLOOR)
+        return joint / norm, norm[..., 0]
 
-    first = jnp.arange(log_prior.shape[1]) == 0
     swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
-    _, norms = jax.lax.scan(step, jnp.zeros_like(log_prior[:, 0]),
-                            (swap(log_prior), swap(log_lik), swap(held), first))
-    return jnp.sum(norms, axis=0)
+    _, norms = jax.lax.scan(step, jnp.zeros_like(new[:, 0]), (swap(new), swap(kept)))
+    return jnp.sum(jnp.log(norms), axis=0) + jnp.sum(top[..., 0], axis=1)
 
 
 def _held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_variance):

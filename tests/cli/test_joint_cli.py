@@ -156,6 +156,15 @@ def test_joint_end_to_end(fitted, scene_files):
             assert row["target"] == ""
 
 
+@pytest.mark.parametrize("flag", [False, True])
+def test_joint_fixation_spot_is_opt_in(fitted, scene_files, tmp_path, capsys, monkeypatch, flag):
+    priors = []
+    monkeypatch.setattr(jaxgaze.joint, "fit_joint", lambda *a, **k: priors.append(k["prior"]) or fitted["posterior"])
+    run_main(capsys, ["joint", *scene_files["gaze"], "--out", tmp_path / "j.nc", "-q"]
+             + (["--fixation-spot"] if flag else []))
+    assert [p.held_concentration for p in priors] == [(1.0, 2.0) if flag else None]
+
+
 @pytest.mark.parametrize("result", ["successful", "not_mixed"])
 def test_joint_exit_status_follows_the_fit(fitted, scene_files, tmp_path, capsys, monkeypatch, result):
     monkeypatch.setattr(jaxgaze.joint, "fit_joint",

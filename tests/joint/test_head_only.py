@@ -12,12 +12,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from tests.joint.test_model import _held_spot
+
 from jaxgaze.cli import main
 from jaxgaze.geometry import head_pose_to_rotation
 from jaxgaze.io.gaze import GazeFileError
 from jaxgaze.io.joint import read_joint_gaze
 from jaxgaze.io.tools.openface import OpenFaceFileError, write_openface_faces
-from jaxgaze.joint import JointPrior, fit_joint, joint_data, joint_start
+from jaxgaze.joint import JointPrior, joint_data, joint_start
 from jaxgaze.joint import rivals
 from jaxgaze.joint.infer import _arrays, _refine_start, _start_values, _unconstrained
 from jaxgaze.joint.init import COUPLING_GRID, coupling_profile
@@ -84,7 +86,7 @@ def _brute_force(data, params, i):
     keep = np.repeat(present, 2)
     log_det = np.linalg.slogdet(jac[np.ix_(keep, keep)])[1]
     gamma = np.asarray(gaze_world(jnp.asarray(h0)))
-    terms, rel, width = {}, {}, {}
+    terms, rel, width, residuals = {}, {}, {}, {}
     for t in range(T):
         g = gamma[t] - h0[t]  # the gaze relative to the head, head frame
         w = math.sqrt(params["cone_width"][i] ** 2 + (data.measurement_scale[t, i] / kappa[0]) ** 2)
@@ -93,16 +95,21 @@ def _brute_force(data, params, i):
         for j in range(P):
             if j != i and data.present[t, j]:
                 logits[j] = params["alpha_person"] + params["speaker_effect"] * data.speaking[t, j]
-                liks[j] = _log_normal2(g - _from_head(data.eye_positions[t, j] - data.eye_positions[t, i], R), w)
+                residuals[t, j] = g - _from_head(data.eye_positions[t, j] - data.eye_positions[t, i], R)
+                liks[j] = _log_normal2(residuals[t, j], w)
         for k in range(K):
             logits[P + k] = params["alpha_object"]
-            liks[P + k] = _log_normal2(g - _from_head(params["locations"][0, k] - data.eye_positions[t, i], R), w)
+            residuals[t, P + k] = g - _from_head(params["locations"][0, k] - data.eye_positions[t, i], R)
+            liks[P + k] = _log_normal2(residuals[t, P + k], w)
         logits["e"] = 0.0
         liks["e"] = _log_normal2(g, JointPrior().elsewhere_spread)
         norm = math.log(sum(math.exp(v) for v in logits.values()))
         terms[t] = {c: (logits[c] - norm, liks[c]) for c in logits}
         rel[t], width[t] = gamma[t], w
     rho = params["stay"]
+    share = params.get("held_cone_share")  # a fixation's spot, as tests/joint/test_model.py's brute force has it
+    spot_terms = {(t, i): terms[t] for t in range(T)}
+    spot_rays = {(t, i): (None, width[t], {c: r for (s, c), r in residuals.items() if s == t}) for t in range(T)}
     names = list(dict.fromkeys(c for t in range(T) for c in terms[t]))
     weights = []
     for seq in itertools.product(names, repeat=T):
@@ -115,6 +122,8 @@ def _brute_force(data, params, i):
             held = new
             if c == "e" and present[t] and present[t - 1]:
                 held = _log_normal2(rel[t] - rel[t - 1], math.sqrt(width[t] ** 2 + width[t - 1] ** 2))
+            elif c != "e" and c == seq[t - 1] and present[t] and share is not None:
+                held = new + _held_spot(spot_terms, spot_rays, present, i, t, c, rho, share, params["cone_width"][i])
             lp += math.log(rho * (c == seq[t - 1]) * math.exp(held) + (1 - rho) * math.exp(terms[t][c][0] + new))
         weights.append(lp)
     return float(np.logaddexp.reduce(weights)) + log_det
@@ -123,13 +132,19 @@ def _brute_force(data, params, i):
 _marginal_log_likelihood = jax.jit(marginal_log_likelihood)
 
 
-@pytest.mark.parametrize("gap", [None, (1, 0)])
-def test_head_only_likelihood_matches_brute_force(x64, gap):
-    data, centres, params = _tiny(T=3, gap=gap)
+@pytest.mark.parametrize("gap, share", [(None, None), ((1, 0), None), ((1, 0), 0.6)])
+def test_head_only_likelihood_matches_brute_force(x64, gap, share):
+    """With ``share``, a fixation's spot on the plane of angles (``held_cone_share``)."""
+    data, centres, params = _tiny(T=3 if share is None else 4, gap=gap)
+    if share is not None:
+        params = {**params, "held_cone_share": share}
     arrays = _arrays(data, centres, jnp.float64)
     total = np.asarray(_marginal_log_likelihood(jax.tree_util.tree_map(jnp.asarray, params), arrays)).sum(axis=0)
     for i in range(data.num_people):
         assert total[i] == pytest.approx(_brute_force(data, params, i), rel=1e-10)
+    if share is not None:  # the spot changes the likelihood here
+        without = {k: v for k, v in params.items() if k != "held_cone_share"}
+        assert abs(sum(_brute_force(data, params, i) - _brute_force(data, without, i) for i in range(3))) > 0.1
 
 
 def test_head_only_gradients_match_finite_differences(x64):
@@ -201,9 +216,6 @@ def test_head_only_input_errors():
         joint_data(eyes, bad, None, present=np.ones(eyes.shape[:2], bool))
     with pytest.raises(ValueError, match="head-mounted cameras"):
         joint_data(eyes, R, None, calibration_points={"0": np.array([[1.0, 0, 0], [1.0, 0.1, 0], [1.0, 0, 0.1]])})
-    # a fixation's spot sent 66-83% of the gazes at people astray with head pose only: refused before any work
-    with pytest.raises(ValueError, match="a fixation's spot.* head pose only"):
-        fit_joint(joint_data(eyes, R, None), key=jax.random.key(0), prior=JointPrior(held_concentration=(1.0, 2.0)))
 
 
 @pytest.fixture(scope="module")

@@ -81,7 +81,7 @@ def _held_spot(terms, rays, observed, i, t, c, rho, share, cone_width):
     one-frame posterior, ``π`` the prior of a new target.
     """
     v0 = share * cone_width**2
-    A, S, gamma = 0.0, np.zeros(3), 1.0
+    A, S, gamma = 0.0, 0.0, 1.0  # S: a residual of any dimension (3-D world, 2-D angles)
     for s in range(t - 1, -1, -1):
         if s < t - 1:  # frame s is of the fixation if c was kept from s to s + 1, not chosen anew
             joint = {k: sum(v) for k, v in terms[s, i].items()}
