@@ -12,7 +12,7 @@ Targets (2-core CPU): NUTS on 60 s × 6 people under 2 minutes; SVI on 10 min ×
 
     python benchmarks/bench_joint.py [--nuts-draws 500] [--svi-steps 3000] [--skip-svi] [--spots]
 
-``--spots`` fits the model with a fixation's spot (``JointPrior(held_concentration=(1.0, 2.0))``, issue 37's
+``--spots`` fits the model with a fixation's spot (``JointPrior(held_scale=1.0)``, issue 37's
 item 5), for that item's cost ratio.
 """
 
@@ -56,9 +56,9 @@ def main() -> None:
     parser.add_argument("--nuts-draws", type=int, default=500, help="NUTS warm-up and draws (default 500 each)")
     parser.add_argument("--svi-steps", type=int, default=3000)
     parser.add_argument("--skip-svi", action="store_true")
-    parser.add_argument("--spots", action="store_true", help="a fixation's spot (JointPrior.held_concentration)")
+    parser.add_argument("--spots", action="store_true", help="a fixation's spot (JointPrior.held_scale)")
     args = parser.parse_args()
-    prior = JointPrior(held_concentration=(1.0, 2.0)) if args.spots else JointPrior()
+    prior = JointPrior(held_scale=1.0) if args.spots else JointPrior()
     print(f"jax {jax.__version__} on {jax.devices()[0].device_kind}")
 
     short = [simulate_conversation(jax.random.key(100 + k), num_people=6, num_objects=2, duration_s=60.0, fps=10.0)

@@ -13,7 +13,7 @@ import numpy as np
 from jaxgaze.joint import JointPrior
 
 #: The joint model with a fixation's spot (issue 37, item 5; opt-in): what every experiment's ``--spots`` fits.
-SPOTS = JointPrior(held_concentration=(1.0, 2.0))
+SPOTS = JointPrior(held_scale=1.0)
 
 
 def distance_sd(draws, truth) -> np.ndarray:

@@ -17,7 +17,7 @@ Usage::
     python experiments/joint_bias_coverage.py [--scenes 12] [--shares 0 0.5] [--people 5 5] [--duration 30]
         [--warmup 300] [--draws 300] [--spots] [--cache out.json] [--part I/N]
 
-``--spots`` fits the model with a fixation's spot (``JointPrior(held_concentration=(1.0, 2.0))``).
+``--spots`` fits the model with a fixation's spot (``JointPrior(held_scale=1.0)``).
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--draws", type=int, default=300)
     parser.add_argument("--seed", type=int, default=375)
     parser.add_argument("--spots", action="store_true",
-                        help="fit with a fixation's spot (JointPrior(held_concentration=(1, 2)), issue 37 item 5)")
+                        help="fit with a fixation's spot (JointPrior(held_scale=1.0), issue 37 item 5)")
     parser.add_argument("--cache", action="append", default=[],
                         help="JSON file of per-scene results (resumes; written to the first, all are read)")
     parser.add_argument("--part", default="0/1", help="I/N: only the runs whose index is I modulo N")

@@ -250,7 +250,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--cache", action="append", default=[],
                         help="JSON file of per-scene results (resumes; written to the first, all are read)")
     parser.add_argument("--part", default="0/1", help="I/N: only the scenes whose index is I modulo N")
-    parser.add_argument("--spots", action="store_true", help="a fixation's spot (JointPrior.held_concentration)")
+    parser.add_argument("--spots", action="store_true", help="a fixation's spot (JointPrior.held_scale)")
     args = parser.parse_args(argv)
     scenes = simulate_conversations(jax.random.key(args.seed), args.scenes)
     keys = jax.random.split(jax.random.key(args.seed + 1), args.scenes)

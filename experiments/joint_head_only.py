@@ -130,7 +130,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=38)
     parser.add_argument("--compare", action="store_true", help="also fit each scene with its gaze measured")
     parser.add_argument("--spots", action="store_true",
-                        help="fit with a fixation's spot (JointPrior(held_concentration=(1, 2)), issue 37 item 5)")
+                        help="fit with a fixation's spot (JointPrior(held_scale=1.0), issue 37 item 5)")
     parser.add_argument("--cache", action="append", default=[], help="JSON file(s) of per-scene results (resumes; "
                         "the last one is written)")
     parser.add_argument("--part", default="0/1", help="I/N: only the scenes whose index is I modulo N")

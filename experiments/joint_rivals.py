@@ -108,7 +108,7 @@ def main(argv=None) -> dict:
                         help="svi: 300 steps, a mean-field posterior (narrower than NUTS's: a stricter test of "
                              "'confidently wrong')")
     parser.add_argument("--search", choices=("on", "off"), default="on")
-    parser.add_argument("--spots", action="store_true", help="a fixation's spot (JointPrior.held_concentration)")
+    parser.add_argument("--spots", action="store_true", help="a fixation's spot (JointPrior.held_scale)")
     parser.add_argument("--cache", default=None, help="JSON file of per-scene results (resumes)")
     parser.add_argument("--part", default="0/1", help="I/N: only the scenes whose index is I modulo N (one "
                         "process per core, each with its own --cache; merge the caches and run again to summarise)")

@@ -84,8 +84,8 @@ def _start_values(start: JointStart, prior: JointPrior, num_people: int) -> dict
         values["concurrence_offset"] = np.zeros((K, 3))
         if W > 1:
             values["concurrence_drift"] = np.zeros((W, K, 3))
-    if prior.held_concentration is not None:
-        values["held_fraction"] = np.asarray(0.25)
+    if prior.held_scale is not None:
+        values["held_spread"] = np.asarray(0.5)  # c = 0.16
     if start.coupling is not None:
         values["coupling"] = np.asarray(start.coupling, float)
         values["head_lag"] = np.asarray(start.head_lag, float)
@@ -158,9 +158,9 @@ def _independent_mode(start: dict, arrays: ModelArrays, prior: JointPrior) -> di
     if "eye_offset" in kept:
         held["eye_offset"] = kept["eye_offset"]
         held["calibration_outlier_share"] = jax.nn.sigmoid(kept["calibration_outlier_share"])
-    coupled = {k: v for k, v in start.items() if k in ("coupling", "head_lag", "held_fraction")}  # profile's, start's
+    coupled = {k: v for k, v in start.items() if k in ("coupling", "head_lag", "held_spread")}  # profile's, start's
     free = {k: v for k, v in start.items() if k not in kept and k not in coupled and k != "stay"}
-    independent = handlers.condition(_model(prior._replace(held_concentration=None), None), {  # no spot to hold
+    independent = handlers.condition(_model(prior._replace(held_scale=None), None), {  # no spot to hold
         **held, "stay": jnp.asarray(1e-6, arrays.gaze_angles.dtype), **rivals.constrained(coupled)})
     return {**_descend(independent, free, arrays), "stay": start["stay"], **coupled, **kept}
 

@@ -162,7 +162,7 @@ def test_joint_fixation_spot_is_opt_in(fitted, scene_files, tmp_path, capsys, mo
     monkeypatch.setattr(jaxgaze.joint, "fit_joint", lambda *a, **k: priors.append(k["prior"]) or fitted["posterior"])
     run_main(capsys, ["joint", *scene_files["gaze"], "--out", tmp_path / "j.nc", "-q"]
              + (["--fixation-spot"] if flag else []))
-    assert [p.held_concentration for p in priors] == [(1.0, 2.0) if flag else None]
+    assert [p.held_scale for p in priors] == [1.0 if flag else None]
 
 
 @pytest.mark.parametrize("result", ["successful", "not_mixed"])

@@ -179,7 +179,7 @@ def _with_spots(*arrays):
 
 
 #: The prior with a fixation's spot (``held_cone_share`` learnt).
-SPOTS = JointPrior(held_concentration=(1.0, 2.0))
+SPOTS = JointPrior(held_scale=1.0)
 
 
 def test_held_spot_matches_brute_force_enumeration(x64):
@@ -204,7 +204,7 @@ def test_held_spot_matches_brute_force_enumeration(x64):
             assert m[t, i, _column(c, 3)] == pytest.approx(value, rel=1e-8, abs=1e-12)
     latent = {"bias": params["bias"], "cone_width": params["cone_width"], "alpha_person": params["alpha_person"],
               "alpha_object": params["alpha_object"], "speaker_effect": params["speaker_effect"], "stay": 0.8,
-              "held_fraction": 0.6 / MAX_HELD_CONE_SHARE,
+              "held_spread": math.sqrt(0.6 / (MAX_HELD_CONE_SHARE - 0.6)),  # c = 0.6
               "concurrence_offset": (params["locations"][0] - centres[0]) / JointPrior().location_scale}
     factor = jax.jit(lambda z: handlers.trace(handlers.substitute(_with_spots, z)).get_trace(*arrays)["gaze"]["fn"]
                      .log_factor.sum())(latent)
@@ -276,7 +276,7 @@ def test_gradients_match_finite_differences(x64):
     rng = np.random.default_rng(3)
     u = {"bias": jnp.asarray(0.1 * rng.normal(size=(3, 2))), "cone_width": jnp.asarray(np.log([0.05, 0.08, 0.1])),
          "alpha_person": jnp.asarray(0.2), "alpha_object": jnp.asarray(-0.1), "speaker_effect": jnp.asarray(1.7),
-         "stay": jnp.asarray(0.8), "held_fraction": jnp.asarray(0.3),
+         "stay": jnp.asarray(0.8), "held_spread": jnp.asarray(1.0),
          "concurrence_offset": jnp.asarray(0.1 * rng.normal(size=(1, 3)))}
     energy = jax.jit(lambda z: potential_energy(_with_spots, arrays, {}, z))
     grad = jax.jit(jax.grad(energy))(u)
