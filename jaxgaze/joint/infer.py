@@ -258,7 +258,9 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
     refined from the current mode, and one whose evidence beats the current mode's becomes
     it. A round that moves the current mode scans again around it (at most
     :data:`~jaxgaze.joint.rivals.MAX_ROUNDS` rounds), as a rival more than the scan's radius
-    from the start can be within it from the first rival. Returns the
+    from the start can be within it from the first rival. A person whose current bias lies beyond the scan's
+    radius from 0 (the prior's centre) is also scanned around 0: on one of 30 conversations with a fixation's
+    spot, the start's descent sent a bias 88° off, out of reach of the scan around it. Returns the
     :class:`~jaxgaze.joint.rivals.ModeSearch` and the chosen mode's inverse Hessian. ``scored``: the start's
     ``(evidence, inverse Hessian)`` when already computed (by :func:`_prune_concurrences`).
     """
@@ -267,6 +269,7 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
     people = np.ones(P, bool)
     people[list(wearers)] = False
     separation = math.radians(rivals.MIN_SEPARATION_DEG)
+    radius = math.radians(rivals.SCAN_RADIUS_DEG)
 
     score = functools.partial(_laplace_evidence, arrays=arrays, prior=prior)
 
@@ -286,8 +289,15 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
             base = modes[current][0]
             params = model_params(rivals.constrained(base), arrays.location_centres, prior)
             profile = np.asarray(rivals.bias_profile(params, arrays, prior, offsets))
-            found = [(i, delta) for i, delta, _ in rivals.profile_rivals(profile, offsets, n, people)
-                     if not known(shifted(base["bias"], i, delta))]
+            rivalled = rivals.profile_rivals(profile, offsets, n, people)
+            bias = np.asarray(base["bias"])
+            far = people & (np.linalg.norm(bias, axis=-1) > radius)
+            if far.any():  # a mode beyond the scan's reach of the prior's centre: scan around bias 0 as well
+                around_zero = np.asarray(rivals.bias_profile({**params, "bias": jnp.zeros_like(params["bias"])},
+                                                             arrays, prior, offsets))
+                rivalled += [(i, delta - bias[i], gap) for i, delta, gap in rivals.profile_rivals(
+                    around_zero, offsets, n, far, reference=profile[(n * n) // 2])]
+            found = [(i, delta) for i, delta, _ in rivalled if not known(shifted(base["bias"], i, delta))]
             if not found:
                 break
             bar.total = (bar.total or 0) + len(found)

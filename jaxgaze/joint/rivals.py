@@ -134,12 +134,14 @@ def bias_profile(params: dict, arrays: ModelArrays, prior: JointPrior, offsets) 
     return jax.lax.map(one, jnp.asarray(offsets, params["bias"].dtype), batch_size=16)
 
 
-def profile_rivals(profile: np.ndarray, offsets: np.ndarray, n: int, candidates: np.ndarray) -> list[tuple]:
+def profile_rivals(profile: np.ndarray, offsets: np.ndarray, n: int, candidates: np.ndarray,
+                   reference: np.ndarray | None = None) -> list[tuple]:
     """Rivals ``(person, offset (2,), profile gap)`` of the people in ``candidates`` (bool ``(P,)``), best first.
 
     A rival is a local maximum of the person's profile on the ``n × n`` grid inside the
     disc, at least :data:`MIN_SEPARATION_DEG` from the centre and at most
-    :data:`PROFILE_MARGIN` below the centre's value.
+    :data:`PROFILE_MARGIN` below the centre's value; with ``reference`` (``(P,)``, the value of
+    a mode elsewhere, whose scan this is not), anywhere in the disc and at most that far below it.
     """
     radius = np.radians(SCAN_RADIUS_DEG) + 1e-9
     inside = (np.linalg.norm(offsets, axis=-1) <= radius).reshape(n, n)
@@ -152,8 +154,8 @@ def profile_rivals(profile: np.ndarray, offsets: np.ndarray, n: int, candidates:
         peaks = (values == maximum_filter(values, size=3, mode="constant", cval=-np.inf)) & np.isfinite(values)
         found = []
         for flat in np.flatnonzero(peaks.ravel()):
-            gap = float(values.ravel()[flat] - profile[centre, i])
-            far = np.degrees(np.linalg.norm(offsets[flat])) >= MIN_SEPARATION_DEG
+            gap = float(values.ravel()[flat] - (profile[centre, i] if reference is None else reference[i]))
+            far = reference is not None or np.degrees(np.linalg.norm(offsets[flat])) >= MIN_SEPARATION_DEG
             if far and gap >= -PROFILE_MARGIN:
                 found.append((int(i), offsets[flat], gap))
         out.extend(sorted(found, key=lambda r: -r[2])[:MAX_RIVALS])

@@ -16,7 +16,7 @@ from jaxgaze.bias.looking import direction_to_gaze_angles
 from jaxgaze.geometry import head_pose_to_rotation
 from jaxgaze.io.joint import write_joint_frames, write_joint_netcdf
 from jaxgaze.joint import JointPrior, fit_joint, joint_data, joint_start
-from jaxgaze.joint.infer import _arrays as model_arrays, _mixture
+from jaxgaze.joint.infer import _arrays as model_arrays, _mixture, _refine_start, _search_modes, _start_values, _to_mode, _unconstrained
 from jaxgaze.joint import rivals
 from jaxgaze.joint.rivals import bias_profile, profile_rivals, scan_offsets
 from jaxgaze.results import RESULTS, FitError
@@ -182,3 +182,24 @@ def test_the_predictive_check_flags_a_person_left_in_a_wrong_mode(rival_scene, m
     assert check["flagged"].tolist() == [False] * 5 + [True]
     assert post.result == RESULTS.misfit  # whatever the sampler says, the fit is not a success
     assert check["elsewhere_observed"][5] > 0.9 and check["elsewhere_predicted"][5] < 0.2
+
+
+def test_a_mode_beyond_the_scans_reach_is_scanned_from_the_priors_centre(rival_scene):
+    """A person's bias planted 90° from the truth and settled in the mode there (93° off, 87° from 0): the scan around
+    it (40°) finds nothing better, so the search stayed there. For a bias beyond the scan's radius from 0 it now
+    scans around bias 0 as well, finds the truth and moves the person back."""
+    scene = rival_scene
+    data = joint_data(scene.eye_positions, scene.R_world_from_head, scene.gaze_angles, present=scene.present,
+                      speaking=scene.speaking, measurement_scale=scene.measurement_scale, fps=scene.fps)
+    start = joint_start(data, key=jax.random.key(1))
+    arrays = model_arrays(data, start.concurrence_centres, np.float32)
+    values = {k: jax.numpy.asarray(v, np.float32) for k, v in
+              _unconstrained(_start_values(start, JointPrior(), data.num_people)).items()}
+    values = _refine_start(values, arrays, JointPrior(), True)
+    person = 2
+    planted = values["bias"].at[person].set(np.asarray(scene.bias[person]) + np.radians([90.0, 0.0]))
+    settled = _to_mode({**values, "bias": planted}, arrays, JointPrior())
+    assert _degrees(settled["bias"][person], scene.bias[person]) > 80.0
+    search, _ = _search_modes(settled, arrays, JointPrior(), (), False)
+    assert person in search.moved
+    assert _degrees(search.start["bias"][person], scene.bias[person]) < 2.0
