@@ -126,8 +126,9 @@ class JointPrior(NamedTuple):
         held_scale: ``None`` (the default): every frame's residual is independent given its
             target. A number, e.g. ``1.0``: a fixation's spot (:func:`_held_spot`) holding a share
             ``c`` of the cone's variance, ``c = held_cone_share(s)``, ``s ~ N(0, held_scale²)``.
-            Gaze measured or head pose only. Not yet the default: it costs about 1.9× the sampling
-            time (``benchmarks/RESULTS.md``).
+            Gaze measured or head pose only. Not yet the default: on one adversarial conversation it
+            left a bias 26° off with a narrow interval (reported ``not_mixed``), and it costs about 1.9×
+            the sampling time (``benchmarks/RESULTS.md``).
     """
 
     bias_scale: float = 0.25
