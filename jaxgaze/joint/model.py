@@ -32,7 +32,7 @@ a share ``c`` (``held_cone_share``, learnt, at most :data:`MAX_HELD_CONE_SHARE`)
 cone's variance is an offset drawn when the target is chosen and held while it is kept
 (:func:`_held_spot`); each frame's marginal is still the cone of width ``w``. Frames
 counted as independent made the 90% bias intervals cover 0.48 on recordings with
-``c = 0.5``; with the spot 0.875 (issue 37, item 5). ``z`` is summed
+``c = 0.5``; with the spot 0.89 (issue 37, item 5). ``z`` is summed
 out exactly by the forward algorithm, ``O(C)`` per frame and person for this transition. The chain restarts from ``π`` every
 :data:`BLOCK_FRAMES` frames: the blocks are independent, run in parallel, and
 are what SVI subsamples. A frame where the gazer is absent moves the chain on
