@@ -12,8 +12,9 @@ import numpy as np
 
 from jaxgaze.joint import JointPrior
 
-#: The joint model with a fixation's spot (issue 37, item 5; opt-in): what every experiment's ``--spots`` fits.
-SPOTS = JointPrior(held_scale=1.0)
+#: The joint model without a fixation's spot (issue 37, item 5; the spot is the default where the data need it):
+#: what every experiment's ``--no-spot`` fits, for the figures before it.
+NO_SPOT = JointPrior(held_scale=None)
 
 
 def distance_sd(draws, truth) -> np.ndarray:

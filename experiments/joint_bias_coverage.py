@@ -15,9 +15,9 @@ coverage with fewer scenes), the median bias error, the result codes.
 Usage::
 
     python experiments/joint_bias_coverage.py [--scenes 12] [--shares 0 0.5] [--people 5 5] [--duration 30]
-        [--warmup 300] [--draws 300] [--spots] [--cache out.json] [--part I/N]
+        [--warmup 300] [--draws 300] [--no-spot] [--cache out.json] [--part I/N]
 
-``--spots`` fits the model with a fixation's spot (``JointPrior(held_scale=1.0)``).
+``--no-spot`` fits the model without a fixation's spot (``JointPrior(held_scale=None)``).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import time
 import jax
 import numpy as np
 
-from _runs import SPOTS, read_caches, write_cache
+from _runs import NO_SPOT, read_caches, write_cache
 from jaxgaze.joint import JointPrior, fit_joint, joint_data
 from jaxgaze.results import name
 from jaxgaze.simulate import ConversationConfig, simulate_conversation
@@ -58,6 +58,7 @@ def evaluate_scene(key, share, people, duration_s, warmup, draws, prior=JointPri
     held = post.samples.get("held_cone_share")
     return {"people": P, "result": name(post.result), "seconds": seconds,
             "held_share": None if held is None else float(np.mean(held)),
+            "spot_log_bayes_factor": post.spot_log_bayes_factor,
             "z": (error / draws_b.std(0)).ravel().tolist(),
             "error_deg": np.degrees(np.linalg.norm(error, axis=-1)).tolist(),
             "bias_cover": ((scene.bias >= bias_iv[..., 0]) & (scene.bias <= bias_iv[..., 1])).ravel().tolist(),
@@ -86,8 +87,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--warmup", type=int, default=300)
     parser.add_argument("--draws", type=int, default=300)
     parser.add_argument("--seed", type=int, default=375)
-    parser.add_argument("--spots", action="store_true",
-                        help="fit with a fixation's spot (JointPrior(held_scale=1.0), issue 37 item 5)")
+    parser.add_argument("--no-spot", action="store_true",
+                        help="the model without a fixation's spot (JointPrior(held_scale=None))")
     parser.add_argument("--cache", action="append", default=[],
                         help="JSON file of per-scene results (resumes; written to the first, all are read)")
     parser.add_argument("--part", default="0/1", help="I/N: only the runs whose index is I modulo N")
@@ -101,7 +102,7 @@ def main(argv=None) -> dict:
         if label in done or n % parts != part:
             continue
         done[label] = evaluate_scene(keys[i], share, args.people, args.duration, args.warmup, args.draws,
-                                     SPOTS if args.spots else JointPrior())
+                                     NO_SPOT if args.no_spot else JointPrior())
         if os.path.exists("/proc/self/maps") and sum(1 for _ in open("/proc/self/maps")) > 30_000:
             jax.clear_caches()  # each shape compiles its own programs: the process's memory maps would run out
         r = done[label]

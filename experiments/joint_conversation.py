@@ -19,10 +19,10 @@ and object locations.
 
 Usage::
 
-    python experiments/joint_conversation.py [--scenes 30] [--warmup 500] [--draws 500] [--spots] [--cache out.json]
+    python experiments/joint_conversation.py [--scenes 30] [--warmup 500] [--draws 500] [--no-spot] [--cache out.json]
         [--part I/N]
 
-``--spots`` fits the joint model with a fixation's spot (``_runs.SPOTS``; issue 37, item 5).
+``--no-spot`` fits the joint model without a fixation's spot (``_runs.NO_SPOT``; issue 37, item 5), as before it.
 
 With ``--part I/N`` a process fits only the scenes whose index is I modulo N (one process per core, each with its
 own ``--cache``); ``--cache`` may be given several times, and the table is printed once every scene has a result.
@@ -37,7 +37,7 @@ import time
 import jax
 import numpy as np
 
-from _runs import SPOTS, confidently_wrong, distance_sd, read_caches, write_cache
+from _runs import NO_SPOT, confidently_wrong, distance_sd, read_caches, write_cache
 from jaxgaze.bias import gaze_offsets, target_direction_head
 from jaxgaze.bias.looking import gaze_angles_to_direction, head_to_world
 from jaxgaze.concurrence import find_concurrences_over_frames
@@ -180,7 +180,8 @@ def evaluate_scene(scene, key, warmup, draws, prior=JointPrior()):
                      "confidently_wrong": int(sum(confidently_wrong(name(post.result), bias_error, distance))),
                      "diagnostics": post.sampler.diagnostics._asdict(),
                      "flagged": post.predictive_check["flagged"].tolist(), "alternatives": len(post.alternatives),
-                     "num_concurrences": K}
+                     "num_concurrences": K, "spot_log_bayes_factor": post.spot_log_bayes_factor,
+                     "spot": "held_cone_share" in post.samples}
 
     # 4: oracle
     gt_bias = _gt_mean_bias(scene, k_gt)
@@ -250,7 +251,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--cache", action="append", default=[],
                         help="JSON file of per-scene results (resumes; written to the first, all are read)")
     parser.add_argument("--part", default="0/1", help="I/N: only the scenes whose index is I modulo N")
-    parser.add_argument("--spots", action="store_true", help="a fixation's spot (JointPrior.held_scale)")
+    parser.add_argument("--no-spot", action="store_true",
+                        help="the model without a fixation's spot (JointPrior(held_scale=None))")
     args = parser.parse_args(argv)
     scenes = simulate_conversations(jax.random.key(args.seed), args.scenes)
     keys = jax.random.split(jax.random.key(args.seed + 1), args.scenes)
@@ -260,7 +262,7 @@ def main(argv=None) -> dict:
         if i in done or i % parts != part:
             continue
         t0 = time.time()
-        done[i] = evaluate_scene(scene, keys[i], args.warmup, args.draws, SPOTS if args.spots else JointPrior())
+        done[i] = evaluate_scene(scene, keys[i], args.warmup, args.draws, NO_SPOT if args.no_spot else JointPrior())
         jax.clear_caches()  # each scene's shapes compile their own programs (the process's memory maps run out)
         print(f"scene {i}: {scene.num_people} people, {scene.num_objects} objects, {time.time() - t0:.0f} s; "
               f"joint acc {done[i]['joint']['accuracy']:.3f} vs Spk {done[i]['pipeline, Spk-LMedS']['accuracy']:.3f}",

@@ -18,7 +18,7 @@ takes the person nearest to the head's forward ray:
 Usage::
 
     python experiments/joint_head_only.py [--scenes 30] [--people 3 8] [--duration 60] [--warmup 300]
-        [--draws 300] [--seed 38] [--compare] [--spots] [--cache out.json] [--part I/N]
+        [--draws 300] [--seed 38] [--compare] [--no-spot] [--cache out.json] [--part I/N]
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ import time
 import jax
 import numpy as np
 
-from _runs import SPOTS, confidently_wrong, distance_sd, read_caches, write_cache
+from _runs import NO_SPOT, confidently_wrong, distance_sd, read_caches, write_cache
 from jaxgaze.joint import JointPrior, expected_calibration_error, fit_joint, joint_data
 from jaxgaze.results import name
 from jaxgaze.simulate import simulate_conversation
@@ -72,7 +72,8 @@ def evaluate_scene(key, people, duration_s, warmup, draws, compare, prior=JointP
     error[:, 0] = np.angle(np.exp(1j * error[:, 0]))
     error_deg = np.degrees(np.linalg.norm(error, axis=-1))
     result = name(post.result)
-    row = {"people": P, "result": result, "seconds": seconds,
+    row = {"people": P, "result": result, "seconds": seconds, "spot_log_bayes_factor": post.spot_log_bayes_factor,
+           "spot": "held_cone_share" in post.samples,
            "right": int(np.sum(post.map_targets()[at_person] == target[at_person])), "at_person": int(at_person.sum()),
            "baseline_right": int(np.sum(_nearest_to_head_ray(data)[at_person] == target[at_person])),
            "pair_p": looks[pairs].tolist(), "pair_event": event[pairs].tolist(),
@@ -129,8 +130,8 @@ def main() -> None:
     parser.add_argument("--draws", type=int, default=300)
     parser.add_argument("--seed", type=int, default=38)
     parser.add_argument("--compare", action="store_true", help="also fit each scene with its gaze measured")
-    parser.add_argument("--spots", action="store_true",
-                        help="fit with a fixation's spot (JointPrior(held_scale=1.0), issue 37 item 5)")
+    parser.add_argument("--no-spot", action="store_true",
+                        help="the model without a fixation's spot (JointPrior(held_scale=None))")
     parser.add_argument("--cache", action="append", default=[], help="JSON file(s) of per-scene results (resumes; "
                         "the last one is written)")
     parser.add_argument("--part", default="0/1", help="I/N: only the scenes whose index is I modulo N")
@@ -142,7 +143,7 @@ def main() -> None:
         if str(i) in done or i % parts != part:
             continue
         done[str(i)] = evaluate_scene(keys[i], args.people, args.duration, args.warmup, args.draws, args.compare,
-                                      SPOTS if args.spots else JointPrior())
+                                      NO_SPOT if args.no_spot else JointPrior())
         r = done[str(i)]
         print(f"scene {i}: {r['people']} people, {r['result']}, right {r['right'] / max(r['at_person'], 1):.3f} "
               f"(baseline {r['baseline_right'] / max(r['at_person'], 1):.3f}), max |kappa error| "

@@ -19,9 +19,9 @@ the fit says ``ambiguous`` or ``not_mixed``.
 
 Usage::
 
-    python experiments/joint_rivals.py [--scenes 30] [--warmup 500] [--draws 500] [--duration 60] [--method nuts|svi] [--search on|off] [--spots] [--cache out.json] [--part I/N]
+    python experiments/joint_rivals.py [--scenes 30] [--warmup 500] [--draws 500] [--duration 60] [--method nuts|svi] [--search on|off] [--no-spot] [--cache out.json] [--part I/N]
 
-``--spots`` fits the model with a fixation's spot (``_runs.SPOTS``; issue 37, item 5).
+``--no-spot`` fits the model without a fixation's spot (``_runs.NO_SPOT``; issue 37, item 5), as before it.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import time
 import jax
 import numpy as np
 
-from _runs import SPOTS, confidently_wrong, distance_sd, read_caches, write_cache
+from _runs import NO_SPOT, confidently_wrong, distance_sd, read_caches, write_cache
 from jaxgaze.joint import JointPrior, fit_joint, infer, joint_data, joint_start, rivals
 from jaxgaze.results import name
 from jaxgaze.simulate import simulate_conversation
@@ -60,6 +60,7 @@ def _fit(data, scene, start, key, warmup, draws, method="nuts", prior=JointPrior
             "confidently_wrong": confidently_wrong(result, error, distance),
             "moved": list(post.modes.moved) if post.modes else [],
             "rivals_tried": post.modes.rivals_tried if post.modes else 0,
+            "spot_log_bayes_factor": post.spot_log_bayes_factor, "spot": "held_cone_share" in post.samples,
             "alternatives": [{"person": a.person, "weight": a.weight, "gap": a.log_evidence_gap}
                              for a in post.alternatives]}
 
@@ -108,7 +109,8 @@ def main(argv=None) -> dict:
                         help="svi: 300 steps, a mean-field posterior (narrower than NUTS's: a stricter test of "
                              "'confidently wrong')")
     parser.add_argument("--search", choices=("on", "off"), default="on")
-    parser.add_argument("--spots", action="store_true", help="a fixation's spot (JointPrior.held_scale)")
+    parser.add_argument("--no-spot", action="store_true",
+                        help="the model without a fixation's spot (JointPrior(held_scale=None))")
     parser.add_argument("--cache", default=None, help="JSON file of per-scene results (resumes)")
     parser.add_argument("--part", default="0/1", help="I/N: only the scenes whose index is I modulo N (one "
                         "process per core, each with its own --cache; merge the caches and run again to summarise)")
@@ -125,7 +127,7 @@ def main(argv=None) -> dict:
             continue
         t0 = time.time()
         done[i] = evaluate_scene(keys[i], args.warmup, args.draws, args.duration, args.method,
-                                 SPOTS if args.spots else JointPrior())
+                                 NO_SPOT if args.no_spot else JointPrior())
         jax.clear_caches()  # each scene's shapes compile their own programs: 6.7 GB after 28 scenes otherwise
         r = done[i]
         print(f"scene {i}: {r['people']} people, rival {r['rival_shift_deg']:.0f}° for person {r['rival_person']}; "

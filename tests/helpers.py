@@ -27,6 +27,7 @@ __all__ = [
     "tabletop_scene",
     "faces",
     "conversation",
+    "held_conversation",
 ]
 
 
@@ -99,3 +100,13 @@ def conversation(num_people: int = 4, num_objects: int = 1, duration_s: float = 
     return simulate.simulate_conversation(
         jax.random.key(seed), num_people=num_people, num_objects=num_objects, duration_s=duration_s, fps=fps,
         num_wearers=num_wearers, config=simulate.conversation_config(cone_width_deg=(1.5, 2.5)))
+
+
+@functools.cache
+def held_conversation(held_cone_share: float, num_people: int = 4, duration_s: float = 20.0, seed: int = 5
+                      ) -> simulate.Conversation:
+    """A seated conversation at 10 fps, no wearers, where a share ``held_cone_share`` of the cone's variance is one
+    offset held through each fixation (a fixation's spot; 0: every frame's scatter independent)."""
+    return simulate.simulate_conversation(
+        jax.random.key(seed), num_people=num_people, duration_s=duration_s,
+        config=simulate.ConversationConfig(held_cone_share=held_cone_share))

@@ -28,7 +28,9 @@ def summary(posterior, data, written) -> str:
 def _held(posterior) -> list[str]:
     """The share of the cone's variance held through a fixation (a fixation's spot), with its 90% interval."""
     if "held_cone_share" not in posterior.samples:
-        return []
+        factor = posterior.spot_log_bayes_factor
+        return [] if factor is None else [f"held through a fixation: none (the data favour a fixation's spot by a "
+                                          f"factor of {math.exp(factor):.2g}, under the 3 that keeps it)"]
     low, high = posterior.interval("held_cone_share")
     return [f"held through a fixation: {np.mean(posterior.samples['held_cone_share']):.0%} of the cone's variance "
             f"(90% interval {low:.0%}-{high:.0%})"]

@@ -61,8 +61,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     a("--seed", default="0", metavar="S", help="random seed (default 0)")
     a("--head-only", action="store_true", help="no eye tracker: the gaze from head pose alone, with each person's "
       "head-gaze coupling learnt (gaze columns are ignored and may be absent)")
-    a("--fixation-spot", action="store_true", help="the gazes of one fixation share an offset from its target "
-      "(JointPrior.held_scale; opt-in: about 1.9x the time)")
     a("--min-confidence", default="0.75", metavar="C", help="OpenFace: drop frames with confidence < C (default 0.75)")
     add_trust_units(p)
     add_quiet(p)
@@ -138,7 +136,7 @@ def _file_of(gaze, people, message: str):
 def run(args) -> int:
     """``jaxgaze joint``: GAZE files and speech → :func:`~jaxgaze.joint.fit_joint` → OUT.nc (and --per-frame)."""
     import jax
-    from jaxgaze.joint import JointPrior, fit_joint, joint_data
+    from jaxgaze.joint import fit_joint, joint_data
     from jaxgaze.results import succeeded
 
     warmup, draws, steps, seed, window_s, min_confidence, args.fps = (_number(o, v, t) for o, v, t in (
@@ -180,8 +178,7 @@ def run(args) -> int:
         with warnings.catch_warnings(record=True) as caught:  # NumPy's and arviz's numerical noise is dropped
             warnings.simplefilter("always")
             posterior = fit_joint(data, key=jax.random.key(seed), method=args.method, num_warmup=warmup,
-                                  num_samples=draws, num_steps=steps, progress=show_progress(args), throw=False,
-                                  prior=JointPrior(held_scale=1.0 if args.fixation_spot else None))
+                                  num_samples=draws, num_steps=steps, progress=show_progress(args), throw=False)
     except ValueError as error:  # joint_data counts frames from 0: name them by their ids in the files
         raise CommandError("the recording is not usable: " + re.sub(r"\bframe (\d+)\b", lambda m: (
             f"frame {gaze.frames[min(int(m[1]), gaze.frames.size - 1)]}"), str(error))) from None

@@ -357,7 +357,7 @@ def write_joint_netcdf(path, posterior) -> str:
 
 def _set_result(idata, posterior) -> None:
     """The fit's ``result`` and its ``alternatives`` (JSON: person, bias and sd in degrees, weight, log evidence
-    gap) as attributes of the posterior group."""
+    gap) as attributes of the posterior group, and ``spot_log_bayes_factor`` where a fixation's spot was asked for."""
     result = getattr(posterior, "result", None)
     if result is None or "posterior" not in idata.groups():
         return
@@ -367,3 +367,6 @@ def _set_result(idata, posterior) -> None:
         {"person": people[a.person], "bias_deg": np.degrees(a.bias).round(4).tolist(),
          "bias_sd_deg": np.degrees(a.bias_sd).round(4).tolist(), "weight": round(float(a.weight), 6),
          "log_evidence_gap": round(float(a.log_evidence_gap), 6)} for a in getattr(posterior, "alternatives", ())])
+    factor = getattr(posterior, "spot_log_bayes_factor", None)
+    if factor is not None:  # a fixation's spot was asked for: kept where positive
+        idata.posterior.attrs["spot_log_bayes_factor"] = round(float(factor), 6)

@@ -120,7 +120,8 @@ def _descend(model, params: dict, arrays: ModelArrays) -> dict:
     return unravel(jnp.where(better, x, flat))
 
 
-def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: bool) -> dict:
+def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: bool, spot_descent: bool = True
+                  ) -> dict:
     """The pipeline's start moved to a mode of the model, in two descents (BFGS, numpyro's unconstrained space).
 
     1. The mode of the model with independent frames (``ρ = 10⁻⁶``). A start far from
@@ -142,25 +143,45 @@ def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: 
     :func:`fit_joint` skips the second descent with wearers: from its point, with the
     eyes held, NUTS drifts to the eyes' far mode.
 
+    With a fixation's spot (``JointPrior.held_scale``) the second descent first finds the mode without
+    the spot, then (``spot_descent``; :func:`fit_joint` leaves it to :func:`_choose_spot`) the
+    spot's from there. Straight from the first mode, the spot's share can grow
+    while the biases are still far off, and the descent scattered them: on one adversarial 8-person
+    scene, errors of 2, 2, 14, 7, 1, 45, 1, 3° became 18, 5, 35, 16, 7, 9, 2, 13°, a mode whose Laplace
+    evidence the rival search could not raise to the truth's (one person ended 26° off at 40 posterior sd).
+    Through the mode without the spot: 1, 1, 2, 1, 1, 19, 0, 3°, and the search mends the 19° (RESULTS,
+    2026-12-05).
+
     The second descent is :func:`_to_mode`'s program, compiled once for the start, the
     pruning and the rival search (inside one program with the first, it was a second BFGS
     program to compile; the saving was not timed alone).
     """
-    values = _independent_mode(start, arrays, prior)
-    return _to_mode(values, arrays, prior) if to_mode else values
+    spotless, spot = _without_spot(start, prior)
+    values = _independent_mode(spotless, arrays, prior._replace(held_scale=None))
+    if to_mode:
+        values = _to_mode(values, arrays, prior._replace(held_scale=None))
+    values = {**values, **spot}
+    return _to_mode(values, arrays, prior) if to_mode and spot and spot_descent else values
+
+
+def _without_spot(values: dict, prior: JointPrior) -> tuple[dict, dict]:
+    """``values`` without the spot's site, and that site alone (empty without a spot)."""
+    spot = {k: v for k, v in values.items() if k == "held_spread"} if prior.held_scale is not None else {}
+    return {k: v for k, v in values.items() if k not in spot}, spot
 
 
 @functools.partial(jax.jit, static_argnames=("prior",))
 def _independent_mode(start: dict, arrays: ModelArrays, prior: JointPrior) -> dict:
-    """The first descent of :func:`_refine_start`: the mode of the model with independent frames."""
+    """The first descent of :func:`_refine_start`: the mode of the model with independent frames (``prior`` has no
+    spot: :func:`_refine_start` takes it out, so that fits with and without one share this program)."""
     kept = {k: v for k, v in start.items() if k in ("eye_offset", "calibration_outlier_share")}
     held = {}
     if "eye_offset" in kept:
         held["eye_offset"] = kept["eye_offset"]
         held["calibration_outlier_share"] = jax.nn.sigmoid(kept["calibration_outlier_share"])
-    coupled = {k: v for k, v in start.items() if k in ("coupling", "head_lag", "held_spread")}  # profile's, start's
+    coupled = {k: v for k, v in start.items() if k in ("coupling", "head_lag")}  # the profile's
     free = {k: v for k, v in start.items() if k not in kept and k not in coupled and k != "stay"}
-    independent = handlers.condition(_model(prior._replace(held_scale=None), None), {  # no spot to hold
+    independent = handlers.condition(_model(prior, None), {
         **held, "stay": jnp.asarray(1e-6, arrays.gaze_angles.dtype), **rivals.constrained(coupled)})
     return {**_descend(independent, free, arrays), "stay": start["stay"], **coupled, **kept}
 
@@ -229,6 +250,11 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
     is dropped at a time, the one whose removal raises the evidence most, each removal
     refined from the current mode (:func:`_to_mode`). Returns the values, the arrays, the slots kept
     (indices into the start's) and the kept mode's ``(evidence, inverse Hessian)`` (for :func:`_search_modes`).
+
+    :func:`fit_joint` prunes with the model without a fixation's spot, whose choice follows
+    (:func:`_choose_spot`): a BFGS program and a Hessian of the spot's model per concurrence count
+    cost 26 s of a 106-s first fit (``bench_joint``), and a spot's offsets lie within the cone of
+    a target, not between targets, so they do not bear on how many targets there are.
     """
     kept = list(range(arrays.location_centres.shape[1]))
     scored = _laplace_evidence(unconstrained, arrays, prior)
@@ -250,6 +276,54 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
     return unconstrained, arrays, kept, scored
 
 
+def _choose_spot(plain_mode: dict, spot: dict, arrays: ModelArrays, prior: JointPrior):
+    """A fixation's spot kept only where the data need it: the Bayes factor of the spot (Kass & Raftery 1995, eq. 1),
+    as :func:`_prune_concurrences` keeps a concurrence only where the evidence rises.
+
+    ``plain_mode`` is the mode without the spot. The factor ``∫ p(g | θ*, s) p(s) ds / p(g | θ*)`` is taken
+    with the other parameters there (:func:`_spot_log_bayes_factor`); only where it exceeds 3
+    (:data:`SPOT_MIN_LOG_FACTOR`) is the spot kept, its mode found from there and sampled. With wearers of
+    head-mounted cameras the start is no mode, and :func:`fit_joint` fits the model without a spot. Where a recording holds no spot, its share
+    ``c = 0.8 s²/(1 + s²)`` has a posterior in ``s`` with two shallow wells at ``±s*`` and quartic
+    walls: the Laplace mass matrix is 2.3× too narrow in ``s``, and NUTS took 15 leapfrog steps a draw
+    instead of 7 (one of ``bench_joint``'s scenes) at 2.2× the gradient's cost, to learn ``c ≈ 0``.
+    Returns the prior to sample with, its mode and the log Bayes factor.
+    """
+    log_factor, best = (float(x) for x in _spot_log_bayes_factor(plain_mode, arrays, prior))
+    if not (math.isfinite(log_factor) and log_factor > SPOT_MIN_LOG_FACTOR):
+        return prior._replace(held_scale=None), plain_mode, log_factor
+    values = {**plain_mode, **spot, "held_spread": jnp.asarray(best, plain_mode["bias"].dtype)}
+    return prior, _to_mode(values, arrays, prior), log_factor
+
+
+#: The least log Bayes factor of a fixation's spot that keeps it: "positive" evidence, a factor of 3 (Kass & Raftery
+#: 1995, Sec. 3.2). On recordings without spots the factor's log was −2.4 to +0.6 (6 simulated scenes; +0.6 kept
+#: the spot on one of ``bench_joint``'s), with ``c = 0.2`` 50–63 and with ``c = 0.5`` 190.
+SPOT_MIN_LOG_FACTOR = math.log(3.0)
+#: Points of the quadrature over the spot's ``s ≥ 0`` (:func:`_spot_log_bayes_factor`), squared-spaced.
+_SPOT_POINTS = 48
+
+
+@functools.partial(jax.jit, static_argnames=("prior",))
+def _spot_log_bayes_factor(plain_mode: dict, arrays: ModelArrays, prior: JointPrior):
+    """``log ∫ p(g | θ*, s) N(s; 0, σ²) ds − log p(g | θ*)`` and the ``s ≥ 0`` at the integrand's peak.
+
+    The trapezoid rule over ``s = 4σu²``, ``u`` in ``[0, 1]`` (dense near ``s = 0``, where a recording
+    without spots puts the likelihood's well); the integrand is even in ``s`` (``c`` depends on ``s²``),
+    so the half line, doubled, is the whole. ``U(s) − U(0)`` of the spot model's potential is the log
+    likelihood ratio plus the prior's, as the spot at ``c = 0`` is the model without it.
+    """
+    u = jnp.linspace(0.0, 1.0, _SPOT_POINTS, dtype=plain_mode["bias"].dtype)
+    spread = 4.0 * prior.held_scale * jnp.square(u)
+    potential = functools.partial(potential_energy, _model(prior, None), tuple(arrays), {})
+    energy = jax.lax.map(lambda s: potential({**plain_mode, "held_spread": s}), spread)  # U(s)
+    log_integrand = energy[0] - energy  # log [p(g|s) p(s) / (p(g|0) p(s = 0))]
+    peak = jnp.max(log_integrand)
+    integral = jax.scipy.integrate.trapezoid(jnp.exp(log_integrand - peak) * 8.0 * prior.held_scale * u, u)
+    log_prior_at_zero = -0.5 * math.log(2 * math.pi) - math.log(prior.held_scale)
+    return peak + jnp.log(2.0 * integral) + log_prior_at_zero, spread[jnp.argmax(log_integrand)]
+
+
 def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, wearers, progress: bool,
                   scored=None):
     """Every person's rival bias modes, refined and compared by Laplace evidence (:mod:`jaxgaze.joint.rivals`).
@@ -258,7 +332,10 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
     refined from the current mode, and one whose evidence beats the current mode's becomes
     it. A round that moves the current mode scans again around it (at most
     :data:`~jaxgaze.joint.rivals.MAX_ROUNDS` rounds), as a rival more than the scan's radius
-    from the start can be within it from the first rival. A person whose current bias lies beyond the scan's
+    from the start can be within it from the first rival. Two refinements that end within the separation of each
+    other are one mode, and the higher of the two points is kept: on one adversarial scene a first rival reached
+    the truth's basin but stopped 150 nats of evidence short of its mode (below the wrong mode it was to replace),
+    and the second, which reached it, was dropped as already known. A person whose current bias lies beyond the scan's
     radius from 0 (the prior's centre) is also scanned around 0: on one of 30 conversations with a fixation's
     spot, the start's descent sent a bias 88° off, out of reach of the scan around it. Returns the
     :class:`~jaxgaze.joint.rivals.ModeSearch` and the chosen mode's inverse Hessian. ``scored``: the start's
@@ -273,8 +350,12 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
 
     score = functools.partial(_laplace_evidence, arrays=arrays, prior=prior)
 
-    def known(bias) -> bool:  # every person's bias within the separation of one found mode's
-        return any(np.all(np.linalg.norm(bias - np.asarray(m[0]["bias"]), axis=-1) < separation) for m in modes)
+    def twin(bias) -> int | None:  # the found mode whose every bias is within the separation of these
+        return next((m for m, mode in enumerate(modes)
+                     if np.all(np.linalg.norm(bias - np.asarray(mode[0]["bias"]), axis=-1) < separation)), None)
+
+    def known(bias) -> bool:
+        return twin(bias) is not None
 
     def shifted(bias, person, delta):
         out = np.array(bias)
@@ -301,22 +382,29 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
             if not found:
                 break
             bar.total = (bar.total or 0) + len(found)
-            start_of_round = current
+            changed = False
             for person, delta in found:
                 bar.update(1)
                 tried += 1
                 trial = {**base, "bias": base["bias"].at[person].add(jnp.asarray(delta, base["bias"].dtype))}
                 theta = _refine_start(trial, arrays, prior, True)
                 b = np.asarray(theta["bias"])
-                if not np.all(np.isfinite(b)) or known(b):
+                if not np.all(np.isfinite(b)):
                     continue
                 evidence, inverse = score(theta)
                 if not math.isfinite(evidence):
                     continue
-                modes.append((theta, evidence, inverse))
-                if evidence > modes[current][1]:
-                    current = len(modes) - 1
-            if current == start_of_round:
+                m = twin(b)  # a mode found before: keep the higher of the two points of its basin
+                if m is None:
+                    modes.append((theta, evidence, inverse))
+                    m = len(modes) - 1
+                elif evidence > modes[m][1]:
+                    modes[m] = (theta, evidence, inverse)
+                else:
+                    continue
+                if m == current or evidence > modes[current][1]:
+                    current, changed = m, True
+            if not changed:
                 break
     best, best_evidence, best_inverse = modes[current]
     everything = np.array([m[1] for m in modes])
@@ -476,6 +564,11 @@ class JointPosterior(NamedTuple):
             ``ambiguous`` when it found an alternative the data cannot rule out (:attr:`alternatives`);
             NUTS then samples every such mode, and the draws (so the means, intervals and
             memberships) mix them in proportion to their weights; ``sampler`` reports the worst run.
+        spot_log_bayes_factor: with a fixation's spot asked for (``JointPrior.held_scale``, the default),
+            the log Bayes factor of the model with it against the model without (:func:`_choose_spot`); the
+            spot was kept, and ``held_cone_share`` is among the draws, where it exceeds ``log 3``
+            (:data:`SPOT_MIN_LOG_FACTOR`). ``None``: no spot asked for, or wearers of head-mounted cameras
+            (their start is no mode to weigh it at; the fit is without one).
     """
 
     sampler: SamplerReport
@@ -490,6 +583,7 @@ class JointPosterior(NamedTuple):
     start: JointStart
     predictive_check: dict
     modes: rivals.ModeSearch | None = None
+    spot_log_bayes_factor: float | None = None
 
     @property
     def alternatives(self) -> tuple:
@@ -679,7 +773,8 @@ def fit_joint(
     def refined(start):
         arrays = _arrays(data, start.concurrence_centres, dtype)
         values = _unconstrained(_start_values(start, prior, data.num_people))
-        return arrays, _refine_start({k: jnp.asarray(v, dtype) for k, v in values.items()}, arrays, prior, at_mode)
+        return arrays, _refine_start({k: jnp.asarray(v, dtype) for k, v in values.items()}, arrays, prior, at_mode,
+                                     spot_descent=False)  # the pruning's last step (at_mode) or none
 
     arrays, unconstrained = refined(start)
     twins = _twin_concurrences(unconstrained, start.concurrence_centres, prior)
@@ -688,11 +783,18 @@ def fit_joint(
         start = start._replace(concurrence_centres=start.concurrence_centres[:, keep],
                                concurrence_support=start.concurrence_support[keep])
         arrays, unconstrained = refined(start)
-    search = None
+    search, scored, spot_factor = None, None, None
+    unconstrained, spot = _without_spot(unconstrained, prior)
     if at_mode:
-        unconstrained, arrays, kept, scored = _prune_concurrences(unconstrained, arrays, prior, progress)
+        unconstrained, arrays, kept, scored = _prune_concurrences(unconstrained, arrays,
+                                                                  prior._replace(held_scale=None), progress)
         start = start._replace(concurrence_centres=start.concurrence_centres[:, kept],
                                concurrence_support=start.concurrence_support[kept])
+    if spot and at_mode:
+        prior, unconstrained, spot_factor = _choose_spot(unconstrained, spot, arrays, prior)
+        scored = scored if prior.held_scale is None else None
+    elif spot:  # wearers: their start is no mode, where the spot's factor would weigh the start's misfit
+        prior = prior._replace(held_scale=None)
     K = start.num_concurrences
     if at_mode:
         search, inverse_hessian = _search_modes(unconstrained, arrays, prior, data.wearers, progress, scored)
@@ -728,7 +830,7 @@ def fit_joint(
     if result == RESULTS.successful and check["flagged"].any():
         result = RESULTS.misfit  # the sampler mixed, but in a mode that explains someone's gaze badly
     posterior = JointPosterior(sampler, result, method, data.people, data.fps, membership, mutual, flat,
-                               data.window, start, check, search)
+                               data.window, start, check, search, spot_factor)
     return throw_if_failed(posterior, result, "fit_joint") if throw else posterior
 
 

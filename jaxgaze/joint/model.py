@@ -27,8 +27,8 @@ target of the previous frame is kept, otherwise it is drawn afresh from ``π_t``
 Given the target ``x``, ``d_ti`` scatters around ``u = unit(x − p_ti)`` as Park's
 cone with width ``w_ti = √(h_i² + σ_ti²)`` (``σ`` the optional per-frame
 measurement sd). Through a fixation the eyes rest on one spot of the target, so the
-residuals of one fixation are correlated. With ``JointPrior(held_scale=1.0)``
-a share ``c`` (``held_cone_share``, learnt, at most :data:`MAX_HELD_CONE_SHARE`) of the
+residuals of one fixation are correlated. With a fixation's spot (``JointPrior.held_scale``, where
+the data need it) a share ``c`` (``held_cone_share``, learnt, at most :data:`MAX_HELD_CONE_SHARE`) of the
 cone's variance is an offset drawn when the target is chosen and held while it is kept
 (:func:`_held_spot`); each frame's marginal is still the cone of width ``w``. Frames
 counted as independent made the 90% bias intervals cover 0.48 on recordings with
@@ -123,12 +123,13 @@ class JointPrior(NamedTuple):
             of sight the head turns (head pose only; most people turn 0.3–1).
         head_lag_scale: scale (seconds) of the half-normal prior of ``τ``, the head's lag
             behind the eyes (head pose only).
-        held_scale: ``None`` (the default): every frame's residual is independent given its
-            target. A number, e.g. ``1.0``: a fixation's spot (:func:`_held_spot`) holding a share
-            ``c`` of the cone's variance, ``c = held_cone_share(s)``, ``s ~ N(0, held_scale²)``.
-            Gaze measured or head pose only. Not yet the default: on one adversarial conversation it
-            left a bias 26° off with a narrow interval (reported ``not_mixed``), and it costs about 1.9×
-            the sampling time (``benchmarks/RESULTS.md``).
+        held_scale: a fixation's spot (:func:`_held_spot`) holding a share ``c`` of the cone's
+            variance, ``c = held_cone_share(s)``, ``s ~ N(0, held_scale²)``, gaze measured or head pose
+            only. :func:`~jaxgaze.joint.fit_joint` keeps it where its Bayes factor against the model
+            without exceeds 3 (``JointPosterior.spot_log_bayes_factor``), and then ``held_cone_share``
+            is among the draws; with wearers of head-mounted cameras it is not weighed, and the fit is without
+            one.
+            ``None``: every frame's residual is independent given its target.
     """
 
     bias_scale: float = 0.25
@@ -144,7 +145,7 @@ class JointPrior(NamedTuple):
     stay_concentration: tuple[float, float] = (2.0, 1.0)
     coupling_concentration: tuple[float, float] = (3.0, 2.0)
     head_lag_scale: float = 0.4
-    held_scale: float | None = None
+    held_scale: float | None = 1.0
 
 
 class ModelArrays(NamedTuple):

@@ -14,8 +14,10 @@ of the fit (exit 1 for a failed fit, Ctrl-C) or fail before any fit (bad input: 
 import contextlib
 import csv
 import io
+import math
 import os
 
+import arviz as az
 import jax
 import numpy as np
 import pytest
@@ -156,13 +158,16 @@ def test_joint_end_to_end(fitted, scene_files):
             assert row["target"] == ""
 
 
-@pytest.mark.parametrize("flag", [False, True])
-def test_joint_fixation_spot_is_opt_in(fitted, scene_files, tmp_path, capsys, monkeypatch, flag):
-    priors = []
-    monkeypatch.setattr(jaxgaze.joint, "fit_joint", lambda *a, **k: priors.append(k["prior"]) or fitted["posterior"])
-    run_main(capsys, ["joint", *scene_files["gaze"], "--out", tmp_path / "j.nc", "-q"]
-             + (["--fixation-spot"] if flag else []))
-    assert [p.held_scale for p in priors] == [1.0 if flag else None]
+def test_joint_says_whether_the_fit_kept_a_fixation_spot(fitted, scene_files, tmp_path, capsys, monkeypatch):
+    post = fitted["posterior"]
+    assert post.spot_log_bayes_factor is not None  # the default prior asks for a spot
+    assert ("held_cone_share" in post.samples) == (post.spot_log_bayes_factor > math.log(3.0))
+    dropped = post._replace(samples={k: v for k, v in post.samples.items() if k != "held_cone_share"},
+                            spot_log_bayes_factor=-2.5)
+    monkeypatch.setattr(jaxgaze.joint, "fit_joint", lambda *a, **k: dropped)
+    status, stdout, _ = run_main(capsys, ["joint", *scene_files["gaze"], "--out", tmp_path / "j.nc"])
+    assert "held through a fixation: none (the data favour a fixation's spot by a factor of 0.082, under the 3" in stdout
+    assert az.from_netcdf(tmp_path / "j.nc").posterior.attrs["spot_log_bayes_factor"] == -2.5
 
 
 @pytest.mark.parametrize("result", ["successful", "not_mixed"])

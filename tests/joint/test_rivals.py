@@ -17,7 +17,7 @@ from jaxgaze.geometry import head_pose_to_rotation
 from jaxgaze.io.joint import write_joint_frames, write_joint_netcdf
 from jaxgaze.joint import JointPrior, fit_joint, joint_data, joint_start
 from jaxgaze.joint.infer import _arrays as model_arrays, _mixture, _refine_start, _search_modes, _start_values, _to_mode, _unconstrained
-from jaxgaze.joint import rivals
+from jaxgaze.joint import infer, rivals
 from jaxgaze.joint.rivals import bias_profile, profile_rivals, scan_offsets
 from jaxgaze.results import RESULTS, FitError
 from jaxgaze.simulate import simulate_conversation
@@ -193,13 +193,46 @@ def test_a_mode_beyond_the_scans_reach_is_scanned_from_the_priors_centre(rival_s
                       speaking=scene.speaking, measurement_scale=scene.measurement_scale, fps=scene.fps)
     start = joint_start(data, key=jax.random.key(1))
     arrays = model_arrays(data, start.concurrence_centres, np.float32)
+    plain = JointPrior(held_scale=None)  # the search is the same with a spot; this scene has none
     values = {k: jax.numpy.asarray(v, np.float32) for k, v in
-              _unconstrained(_start_values(start, JointPrior(), data.num_people)).items()}
-    values = _refine_start(values, arrays, JointPrior(), True)
+              _unconstrained(_start_values(start, plain, data.num_people)).items()}
+    values = _refine_start(values, arrays, plain, True)
     person = 2
     planted = values["bias"].at[person].set(np.asarray(scene.bias[person]) + np.radians([90.0, 0.0]))
-    settled = _to_mode({**values, "bias": planted}, arrays, JointPrior())
+    settled = _to_mode({**values, "bias": planted}, arrays, plain)
     assert _degrees(settled["bias"][person], scene.bias[person]) > 80.0
-    search, _ = _search_modes(settled, arrays, JointPrior(), (), False)
+    search, _ = _search_modes(settled, arrays, plain, (), False)
     assert person in search.moved
     assert _degrees(search.start["bias"][person], scene.bias[person]) < 2.0
+
+
+def test_a_better_point_of_a_mode_already_found_replaces_it(monkeypatch):
+    """Two rivals of ann's wrong bias (+15°) refine into the right basin (−15°): the first stops short of its mode
+    with less evidence than the wrong one, the second reaches it. The second is the same mode (within 5°), so it was
+    dropped as known and the search stayed in the wrong mode (adversarial scene 0: a bias 94° off); the higher
+    point of a basin now replaces the lower, and wins."""
+    data = _circle(jax.random.key(3))
+    start = joint_start(data, key=jax.random.key(0))
+    arrays = model_arrays(data, start.concurrence_centres, np.float32)
+    prior = JointPrior(held_scale=None)
+    values = {k: jax.numpy.asarray(v, np.float32) for k, v in _unconstrained(_start_values(start, prior, 6)).items()}
+    wrong = {**values, "bias": values["bias"].at[0].set(np.radians([15.0, 0.0]).astype(np.float32))}
+    ends = iter([-14.5, -15.0, -15.0, -15.0])  # the refinements' yaw for ann, in turn (degrees)
+    evidence = {15.0: 100.0, -14.5: 90.0, -15.0: 120.0}
+
+    def refine(trial, arrays, prior, to_mode, spot_descent=True):
+        return {**trial, "bias": trial["bias"].at[0].set(np.radians([next(ends), 0.0]).astype(np.float32))}
+
+    def laplace(values, arrays, prior):
+        yaw = round(float(np.degrees(values["bias"][0, 0])), 1)
+        return evidence[yaw], np.eye(2 * 6)
+
+    offsets = np.radians([[-30.0, 0.0], [-26.0, 0.0]])
+    monkeypatch.setattr(rivals, "bias_profile", lambda params, arrays, prior, offsets: np.zeros((2, 6)))
+    monkeypatch.setattr(rivals, "profile_rivals", lambda *a, **k: [(0, offsets[0], 0.0), (0, offsets[1], 0.0)])
+    monkeypatch.setattr(infer, "_refine_start", refine)
+    monkeypatch.setattr(infer, "_laplace_evidence", laplace)
+    search, _ = _search_modes(wrong, arrays, prior, (), False, (100.0, np.eye(12)))
+    assert search.rivals_tried >= 2
+    assert float(np.degrees(search.start["bias"][0, 0])) == pytest.approx(-15.0, abs=1e-3)
+    assert search.moved == (0,) and search.log_evidence == 120.0 and not search.alternatives
