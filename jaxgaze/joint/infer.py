@@ -120,8 +120,7 @@ def _descend(model, params: dict, arrays: ModelArrays) -> dict:
     return unravel(jnp.where(better, x, flat))
 
 
-def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: bool, spot_descent: bool = True
-                  ) -> dict:
+def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: bool) -> dict:
     """The pipeline's start moved to a mode of the model, in two descents (BFGS, numpyro's unconstrained space).
 
     1. The mode of the model with independent frames (``ρ = 10⁻⁶``). A start far from
@@ -144,8 +143,8 @@ def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: 
     eyes held, NUTS drifts to the eyes' far mode.
 
     With a fixation's spot (``JointPrior.held_scale``) the second descent first finds the mode without
-    the spot, then (``spot_descent``; :func:`fit_joint` leaves it to :func:`_choose_spot`) the
-    spot's from there. Straight from the first mode, the spot's share can grow
+    the spot, then the spot's from there (:func:`fit_joint` starts without the spot and weighs it
+    afterwards: :func:`_choose_spot`). Straight from the first mode, the spot's share can grow
     while the biases are still far off, and the descent scattered them: on one adversarial 8-person
     scene, errors of 2, 2, 14, 7, 1, 45, 1, 3° became 18, 5, 35, 16, 7, 9, 2, 13°, a mode whose Laplace
     evidence the rival search could not raise to the truth's (one person ended 26° off at 40 posterior sd).
@@ -161,7 +160,7 @@ def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: 
     if to_mode:
         values = _to_mode(values, arrays, prior._replace(held_scale=None))
     values = {**values, **spot}
-    return _to_mode(values, arrays, prior) if to_mode and spot and spot_descent else values
+    return _to_mode(values, arrays, prior) if to_mode and spot else values
 
 
 def _without_spot(values: dict, prior: JointPrior) -> tuple[dict, dict]:
@@ -276,7 +275,7 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
     return unconstrained, arrays, kept, scored
 
 
-def _choose_spot(plain_mode: dict, spot: dict, arrays: ModelArrays, prior: JointPrior):
+def _choose_spot(plain_mode: dict, arrays: ModelArrays, prior: JointPrior):
     """A fixation's spot kept only where the data need it: the Bayes factor of the spot (Kass & Raftery 1995, eq. 1),
     as :func:`_prune_concurrences` keeps a concurrence only where the evidence rises.
 
@@ -292,7 +291,7 @@ def _choose_spot(plain_mode: dict, spot: dict, arrays: ModelArrays, prior: Joint
     log_factor, best = (float(x) for x in _spot_log_bayes_factor(plain_mode, arrays, prior))
     if not (math.isfinite(log_factor) and log_factor > SPOT_MIN_LOG_FACTOR):
         return prior._replace(held_scale=None), plain_mode, log_factor
-    values = {**plain_mode, **spot, "held_spread": jnp.asarray(best, plain_mode["bias"].dtype)}
+    values = {**plain_mode, "held_spread": jnp.asarray(best, plain_mode["bias"].dtype)}
     return prior, _to_mode(values, arrays, prior), log_factor
 
 
@@ -770,11 +769,12 @@ def fit_joint(
     # the eye's depth: no mode, so NUTS learns its mass matrix in the warm-up instead of the Laplace one.
     at_mode = not data.wearers
 
+    plain = prior._replace(held_scale=None)  # a fixation's spot is weighed after the pruning (_choose_spot)
+
     def refined(start):
         arrays = _arrays(data, start.concurrence_centres, dtype)
-        values = _unconstrained(_start_values(start, prior, data.num_people))
-        return arrays, _refine_start({k: jnp.asarray(v, dtype) for k, v in values.items()}, arrays, prior, at_mode,
-                                     spot_descent=False)  # the pruning's last step (at_mode) or none
+        values = _unconstrained(_start_values(start, plain, data.num_people))
+        return arrays, _refine_start({k: jnp.asarray(v, dtype) for k, v in values.items()}, arrays, plain, at_mode)
 
     arrays, unconstrained = refined(start)
     twins = _twin_concurrences(unconstrained, start.concurrence_centres, prior)
@@ -784,17 +784,15 @@ def fit_joint(
                                concurrence_support=start.concurrence_support[keep])
         arrays, unconstrained = refined(start)
     search, scored, spot_factor = None, None, None
-    unconstrained, spot = _without_spot(unconstrained, prior)
     if at_mode:
-        unconstrained, arrays, kept, scored = _prune_concurrences(unconstrained, arrays,
-                                                                  prior._replace(held_scale=None), progress)
+        unconstrained, arrays, kept, scored = _prune_concurrences(unconstrained, arrays, plain, progress)
         start = start._replace(concurrence_centres=start.concurrence_centres[:, kept],
                                concurrence_support=start.concurrence_support[kept])
-    if spot and at_mode:
-        prior, unconstrained, spot_factor = _choose_spot(unconstrained, spot, arrays, prior)
+    if prior.held_scale is not None and at_mode:
+        prior, unconstrained, spot_factor = _choose_spot(unconstrained, arrays, prior)
         scored = scored if prior.held_scale is None else None
-    elif spot:  # wearers: their start is no mode, where the spot's factor would weigh the start's misfit
-        prior = prior._replace(held_scale=None)
+    else:  # wearers: their start is no mode, where the spot's factor would weigh the start's misfit
+        prior = plain
     K = start.num_concurrences
     if at_mode:
         search, inverse_hessian = _search_modes(unconstrained, arrays, prior, data.wearers, progress, scored)

@@ -14,7 +14,7 @@ from scipy import integrate
 
 from jaxgaze.joint import JointPrior, joint_data, joint_start
 from jaxgaze.joint.infer import (SPOT_MIN_LOG_FACTOR, _arrays, _choose_spot, _model, _refine_start, _spot_log_bayes_factor, _start_values,
-                                 _unconstrained, _without_spot)
+                                 _unconstrained)
 from tests.helpers import held_conversation
 
 SPOT = JointPrior()  # the default asks for a spot
@@ -22,22 +22,21 @@ PLAIN = JointPrior(held_scale=None)
 
 
 def _plain_mode(share, dtype=jnp.float32):
-    """The scene's start moved to the mode of the model without the spot (as :func:`fit_joint` does), the spot's
-    start value apart."""
+    """The scene's start moved to the mode of the model without the spot, as :func:`fit_joint` does."""
     scene = held_conversation(share)
     data = joint_data(scene.eye_positions, scene.R_world_from_head, scene.gaze_angles, present=scene.present,
                       speaking=scene.speaking, measurement_scale=scene.measurement_scale, fps=scene.fps)
     start = joint_start(data, key=jax.random.key(0))
     arrays = _arrays(data, start.concurrence_centres, dtype)
-    values = {k: jnp.asarray(v, dtype) for k, v in _unconstrained(_start_values(start, SPOT, data.num_people)).items()}
-    mode, spot = _without_spot(_refine_start(values, arrays, SPOT, True, spot_descent=False), SPOT)
-    return scene, arrays, mode, spot
+    values = {k: jnp.asarray(v, dtype) for k, v in _unconstrained(_start_values(start, PLAIN, data.num_people)).items()}
+    mode = _refine_start(values, arrays, PLAIN, True)
+    return scene, arrays, mode
 
 
 @pytest.mark.parametrize("share", [0.0, 0.5])
 def test_the_spot_is_kept_where_fixations_hold_one_and_dropped_where_not(share):
-    scene, arrays, mode, spot = _plain_mode(share)
-    prior, values, log_factor = _choose_spot(mode, spot, arrays, SPOT)
+    scene, arrays, mode = _plain_mode(share)
+    prior, values, log_factor = _choose_spot(mode, arrays, SPOT)
     if share == 0.0:  # every frame's scatter independent: the simpler model
         assert log_factor < SPOT_MIN_LOG_FACTOR and prior.held_scale is None and values is mode
     else:
@@ -54,7 +53,7 @@ def test_the_spot_is_kept_where_fixations_hold_one_and_dropped_where_not(share):
 def test_the_spots_bayes_factor_against_adaptive_quadrature(x64):
     """The trapezoid rule over 48 squared-spaced points against scipy's adaptive quadrature of the same integrand,
     ``p(g | θ*, s) p(s) / p(g | θ*)`` over the whole line (float64)."""
-    _, arrays, mode, _ = _plain_mode(0.5, jnp.float64)
+    _, arrays, mode = _plain_mode(0.5, jnp.float64)
     potential = jax.jit(lambda s: potential_energy(_model(SPOT, None), tuple(arrays), {}, {**mode, "held_spread": s}))
     at_zero = float(potential(0.0))
     log_factor, best = (float(x) for x in _spot_log_bayes_factor(mode, arrays, SPOT))
