@@ -62,6 +62,12 @@ _REFINE_STEPS = 300
 #: the weakest prior curvature is about 0.1 (a logit of sd 3), so only a direction the start is no mode in
 #: is raised to it.
 _MIN_CURVATURE = 0.01
+#: The least log Bayes factor of a fixation's spot that keeps it: "positive" evidence, a factor of 3 (Kass & Raftery
+#: 1995, Sec. 3.2). On recordings without spots the factor's log was −2.4 to +0.6 (6 simulated scenes; +0.6 kept
+#: the spot on one of ``bench_joint``'s), with ``c = 0.2`` 50–63 and with ``c = 0.5`` 190.
+SPOT_MIN_LOG_FACTOR = math.log(3.0)
+#: Points of the quadrature over the spot's ``s ≥ 0`` (:func:`_spot_log_bayes_factor`), squared-spaced.
+_SPOT_POINTS = 48
 
 
 @functools.lru_cache(maxsize=None)
@@ -156,9 +162,10 @@ def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: 
     program to compile; the saving was not timed alone).
     """
     spotless, spot = _without_spot(start, prior)
-    values = _independent_mode(spotless, arrays, prior._replace(held_scale=None))
+    plain = prior._replace(held_scale=None)
+    values = _independent_mode(spotless, arrays, plain)
     if to_mode:
-        values = _to_mode(values, arrays, prior._replace(held_scale=None))
+        values = _to_mode(values, arrays, plain)
     values = {**values, **spot}
     return _to_mode(values, arrays, prior) if to_mode and spot else values
 
@@ -282,8 +289,9 @@ def _choose_spot(plain_mode: dict, arrays: ModelArrays, prior: JointPrior):
     ``plain_mode`` is the mode without the spot. The factor ``∫ p(g | θ*, s) p(s) ds / p(g | θ*)`` is taken
     with the other parameters there (:func:`_spot_log_bayes_factor`); only where it exceeds 3
     (:data:`SPOT_MIN_LOG_FACTOR`) is the spot kept, its mode found from there and sampled. With wearers of
-    head-mounted cameras the start is no mode, and :func:`fit_joint` fits the model without a spot. Where a recording holds no spot, its share
-    ``c = 0.8 s²/(1 + s²)`` has a posterior in ``s`` with two shallow wells at ``±s*`` and quartic
+    head-mounted cameras the start is no mode, and :func:`fit_joint` fits the model without a spot.
+
+    Where a recording holds no spot, its share ``c = 0.8 s²/(1 + s²)`` has a posterior in ``s`` with two shallow wells at ``±s*`` and quartic
     walls: the Laplace mass matrix is 2.3× too narrow in ``s``, and NUTS took 15 leapfrog steps a draw
     instead of 7 (one of ``bench_joint``'s scenes) at 2.2× the gradient's cost, to learn ``c ≈ 0``.
     Returns the prior to sample with, its mode and the log Bayes factor.
@@ -293,14 +301,6 @@ def _choose_spot(plain_mode: dict, arrays: ModelArrays, prior: JointPrior):
         return prior._replace(held_scale=None), plain_mode, log_factor
     values = {**plain_mode, "held_spread": jnp.asarray(best, plain_mode["bias"].dtype)}
     return prior, _to_mode(values, arrays, prior), log_factor
-
-
-#: The least log Bayes factor of a fixation's spot that keeps it: "positive" evidence, a factor of 3 (Kass & Raftery
-#: 1995, Sec. 3.2). On recordings without spots the factor's log was −2.4 to +0.6 (6 simulated scenes; +0.6 kept
-#: the spot on one of ``bench_joint``'s), with ``c = 0.2`` 50–63 and with ``c = 0.5`` 190.
-SPOT_MIN_LOG_FACTOR = math.log(3.0)
-#: Points of the quadrature over the spot's ``s ≥ 0`` (:func:`_spot_log_bayes_factor`), squared-spaced.
-_SPOT_POINTS = 48
 
 
 @functools.partial(jax.jit, static_argnames=("prior",))
