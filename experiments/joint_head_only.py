@@ -18,7 +18,8 @@ takes the person nearest to the head's forward ray:
 Usage::
 
     python experiments/joint_head_only.py [--scenes 30] [--people 3 8] [--duration 60] [--warmup 300]
-        [--draws 300] [--seed 38] [--compare] [--no-spot] [--cache out.json] [--part I/N]
+        [--draws 300] [--seed 38] [--compare] [--no-spot] [--coupling-shape RADIANS] [--head-turn-limit DEG]
+        [--cache out.json] [--part I/N]
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ import numpy as np
 from _runs import NO_SPOT, confidently_wrong, distance_sd, read_caches, write_cache
 from jaxgaze.joint import JointPrior, expected_calibration_error, fit_joint, joint_data
 from jaxgaze.results import name
-from jaxgaze.simulate import simulate_conversation
+from jaxgaze.simulate import ConversationConfig, simulate_conversation
 
 
 def _nearest_to_head_ray(data) -> np.ndarray:
@@ -46,10 +47,10 @@ def _nearest_to_head_ray(data) -> np.ndarray:
     return np.where(others, cosine, -2.0).argmax(-1)
 
 
-def evaluate_scene(key, people, duration_s, warmup, draws, compare, prior=JointPrior()):
+def evaluate_scene(key, people, duration_s, warmup, draws, compare, prior=JointPrior(), config=None):
     k_scene, k_fit = jax.random.split(key)
     P = int(jax.random.randint(k_scene, (), people[0], people[1] + 1))
-    scene = simulate_conversation(k_scene, num_people=P, duration_s=duration_s)
+    scene = simulate_conversation(k_scene, num_people=P, duration_s=duration_s, config=config)
     data = joint_data(scene.eye_positions, scene.R_world_from_head, None, present=scene.present,
                       speaking=scene.speaking, fps=scene.fps)
     t0 = time.time()
@@ -132,6 +133,10 @@ def main() -> None:
     parser.add_argument("--compare", action="store_true", help="also fit each scene with its gaze measured")
     parser.add_argument("--no-spot", action="store_true",
                         help="the model without a fixation's spot (JointPrior(held_scale=None))")
+    parser.add_argument("--coupling-shape", type=float, default=None, metavar="RADIANS",
+                        help="a non-linear head-gaze map: JointPrior(coupling_shape_scale=RADIANS)")
+    parser.add_argument("--head-turn-limit", type=float, default=0.0, metavar="DEG",
+                        help="simulated heads whose turn saturates, L tanh(kappa theta / L) (0: linear)")
     parser.add_argument("--cache", action="append", default=[], help="JSON file(s) of per-scene results (resumes; "
                         "the last one is written)")
     parser.add_argument("--part", default="0/1", help="I/N: only the scenes whose index is I modulo N")
@@ -142,8 +147,10 @@ def main() -> None:
     for i in range(args.scenes):
         if str(i) in done or i % parts != part:
             continue
+        prior = (NO_SPOT if args.no_spot else JointPrior())._replace(coupling_shape_scale=args.coupling_shape)
+        config = ConversationConfig()._replace(head_turn_limit_deg=args.head_turn_limit)
         done[str(i)] = evaluate_scene(keys[i], args.people, args.duration, args.warmup, args.draws, args.compare,
-                                      NO_SPOT if args.no_spot else JointPrior())
+                                      prior, config)
         r = done[str(i)]
         print(f"scene {i}: {r['people']} people, {r['result']}, right {r['right'] / max(r['at_person'], 1):.3f} "
               f"(baseline {r['baseline_right'] / max(r['at_person'], 1):.3f}), max |kappa error| "

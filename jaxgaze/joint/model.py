@@ -54,7 +54,10 @@ angles, so each observed frame adds the log Jacobian of the map from head to gaz
 ``Σ_axes log((1 + τ·fps) / κ)`` (``log(1/κ)`` after a gap: no rate there); without
 it a head that turns fully (``κ → 1``) looks best, as it packs the gazes tightest.
 ``κ`` (per person and axis) and ``τ`` (per person) are inferred with the rest; a head
-tracker's per-frame sd ``σ`` enters the width as ``σ / κ``.
+tracker's per-frame sd ``σ`` enters the width as ``σ / κ``. With
+``JointPrior.coupling_shape_scale`` the map from head to gaze is the linear one plus a
+Gaussian process per person and axis (Yücel et al. 2013's regression as a latent function,
+:func:`coupling_shape`), for heads whose turn is not proportional to the gaze's.
 
 Candidate order, everywhere: people ``0 … P−1``, concurrences ``P … P+K−1``,
 elsewhere ``P+K``.
@@ -71,13 +74,15 @@ import numpyro
 import numpyro.distributions as dist
 from jax.scipy.special import logsumexp
 from jaxtyping import Array, Bool, Float, Int
+from numpyro.contrib.hsgp.approximation import diag_spectral_density_squared_exponential
+from numpyro.contrib.hsgp.laplacian import eigenfunctions
 
 from jaxgaze.bias.looking import direction_to_gaze_angles, gaze_angles_to_direction, head_to_world
 from jaxgaze.calibration.posterior import calibration_log_likelihood
 from jaxgaze.cone import cone_direction_log_density
 from jaxgaze.geometry import unit, wrap_angle
 
-__all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "head_gaze_angles", "head_log_jacobian", "gaze_angles", "candidate_log_probabilities",
+__all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "head_gaze_angles", "head_log_jacobian", "coupling_shape", "gaze_angles", "candidate_log_probabilities",
            "marginal_log_likelihood", "target_marginals", "target_log_prior", "model_params", "concurrence_locations", "eye_positions"]
 
 #: The model's sites on the positive half-line and in (0, 1): numpyro samples them as logs and logits.
@@ -87,6 +92,12 @@ UNIT_SITES = ("stay", "calibration_outlier_share", "coupling")
 #: with ``c → 1`` and ``ρ → 1`` a block is one fixation whose spot may lie anywhere, only its first frame pays for the
 #: cone's width, and NUTS ran away to widths of 10⁸ rad; with ``c ≤ 0.8`` every frame pays for a fifth of it.
 MAX_HELD_CONE_SHARE = 0.8
+#: The Gaussian process of a non-linear head–gaze map (:func:`coupling_shape`): its squared-exponential length
+#: scale (radians of head turn), the half-width of the interval its basis spans and the number of basis functions
+#: (Riutort-Mayol et al. 2023: ``m ≥ 1.75 · half-width / length`` for a ``1.5``-wide margin).
+COUPLING_SHAPE_LENGTH = 0.4
+COUPLING_SHAPE_HALF_WIDTH = 1.5
+COUPLING_SHAPE_BASIS = 12
 #: Frames per block of the target chain (it restarts from the prior at each block).
 BLOCK_FRAMES = 64
 # Impossible candidates (oneself, an absent person) enter the forward pass at this log
@@ -130,6 +141,9 @@ class JointPrior(NamedTuple):
             is among the draws; with wearers of head-mounted cameras it is not weighed, and the fit is without
             one.
             ``None``: every frame's residual is independent given its target.
+        coupling_shape_scale: head pose only: the amplitude (radians, gaze units) of a Gaussian process
+            added to the linear map from head to gaze, per person and axis (Yücel et al. 2013, Sec. V:
+            the head-to-gaze map as a GP; :func:`coupling_shape`). ``None``: the map is linear.
     """
 
     bias_scale: float = 0.25
@@ -146,6 +160,7 @@ class JointPrior(NamedTuple):
     coupling_concentration: tuple[float, float] = (3.0, 2.0)
     head_lag_scale: float = 0.4
     held_scale: float | None = 1.0
+    coupling_shape_scale: float | None = None
 
 
 class ModelArrays(NamedTuple):
@@ -189,6 +204,9 @@ def model_params(values: dict, centres: Float[Array, "W K 3"], prior: JointPrior
     locations from the concurrence offsets (:func:`concurrence_locations`), ``α_object = 0`` without concurrences."""
     p = {k: values[k] for k in ("bias", "cone_width", "alpha_person", "speaker_effect", "stay")}
     p.update({k: values[k] for k in ("coupling", "head_lag") if k in values})
+    if "coupling_shape" in values:
+        p["coupling_shape"] = values["coupling_shape"] * coupling_shape_spectrum(prior.coupling_shape_scale,
+                                                                                 values["coupling_shape"].dtype)
     if centres.shape[1]:
         p["alpha_object"] = values["alpha_object"]
         p["locations"] = concurrence_locations(values, centres, prior)
@@ -211,29 +229,64 @@ def eye_positions(params: dict, arrays: ModelArrays) -> Float[Array, "T P 3"]:
     return arrays.eye_positions.at[:, w].add(offset)
 
 
-def head_gaze_angles(head_motion: Float[Array, "T P 5"], coupling: Float[Array, "P 2"], head_lag: Float[Array, " P"]
-                     ) -> Float[Array, "T P 2"]:
+def head_gaze_angles(head_motion: Float[Array, "T P 5"], coupling: Float[Array, "P 2"], head_lag: Float[Array, " P"],
+                     shape: Float[Array, "P 2 M"] | None = None) -> Float[Array, "T P 2"]:
     """The gaze's angles relative to the head, from head pose alone: ``λ (h − ref) + (1 + λ) τ ḣ`` with ``λ = 1/κ − 1`` (Stiefelhagen & Zhu 2002; Ba & Odobez 2009).
 
     The inverse of ``κ (gaze − rest) = h + τ ḣ − rest`` per axis, without its constant
-    ``λ (ref − rest)``, which the bias carries.
+    ``λ (ref − rest)``, which the bias carries. With ``shape``, plus the non-linear part
+    ``f(h + τ ḣ − ref)`` of :func:`coupling_shape`.
     """
     lam = 1.0 / coupling - 1.0  # (P, 2)
-    return lam * head_motion[..., :2] + (1.0 + lam) * head_lag[:, None] * head_motion[..., 2:4]
+    gaze = lam * head_motion[..., :2] + (1.0 + lam) * head_lag[:, None] * head_motion[..., 2:4]
+    if shape is None:
+        return gaze
+    return gaze + coupling_shape(_undone(head_motion, head_lag), shape)[0]
 
 
-def head_log_jacobian(head_motion: Float[Array, "T P 5"], coupling: Float[Array, "P 2"], head_lag: Float[Array, " P"]
-                      ) -> Float[Array, "T P"]:
+def _undone(head_motion, head_lag):
+    """``x − ref = h − ref + τ ḣ``: the head undone of its lag, from its mean direction ``(T, P, 2)``."""
+    return head_motion[..., :2] + head_lag[:, None] * head_motion[..., 2:4]
+
+
+def coupling_shape(undone: Float[Array, "T P 2"], shape: Float[Array, "P 2 M"]) -> tuple[Array, Array]:
+    """``f(v)`` and ``f'(v)``, the non-linear part of the head–gaze map per person and axis (Yücel et al. 2013, Sec. V; Solin & Särkkä 2020, eq. 56).
+
+    A Gaussian process of squared-exponential kernel on the head's turn ``v = x − ref``, in the
+    reduced-rank basis of the Laplacian's eigenfunctions on ``[−L, L]`` (numpyro's ``hsgp``):
+    ``f(v) = Σ_m φ_m(v) c_m``, ``c = √S(√λ_m) z``, ``z ~ N(0, 1)``; ``shape`` holds ``c``
+    (:func:`coupling_shape_spectrum` times the draws).
+    """
+    basis = lambda v: eigenfunctions(v[..., None], COUPLING_SHAPE_HALF_WIDTH, COUPLING_SHAPE_BASIS)  # noqa: E731
+    phi, dphi = jax.jvp(basis, (undone,), (jnp.ones_like(undone),))  # (T, P, 2, M)
+    return jnp.sum(phi * shape[None], axis=-1), jnp.sum(dphi * shape[None], axis=-1)
+
+
+def coupling_shape_spectrum(scale: float, dtype) -> Float[Array, " M"]:
+    """``√S(√λ_m)``: the squared-exponential kernel's spectral density at the basis's frequencies (amplitude
+    ``scale``, length :data:`COUPLING_SHAPE_LENGTH`), the prior sd of each basis function's weight."""
+    density = diag_spectral_density_squared_exponential(jnp.asarray(scale, dtype), COUPLING_SHAPE_LENGTH,
+                                                        COUPLING_SHAPE_HALF_WIDTH, COUPLING_SHAPE_BASIS, 1)
+    return jnp.sqrt(density)
+
+
+def head_log_jacobian(head_motion: Float[Array, "T P 5"], coupling: Float[Array, "P 2"], head_lag: Float[Array, " P"],
+                      shape: Float[Array, "P 2 M"] | None = None) -> Float[Array, "T P"]:
     """``Σ_axes log((1 + τ·fps) / κ)`` per frame: the log Jacobian of the map from the head's angles to the gaze's
-    (``fps`` is 0 after a gap). The density of a head pose is the gaze's density times it."""
-    return 2.0 * jnp.log1p(head_lag * head_motion[..., 4]) - jnp.sum(jnp.log(coupling), axis=-1)
+    (``fps`` is 0 after a gap). The density of a head pose is the gaze's density times it. With ``shape``,
+    ``Σ_axes log((1 + τ·fps) (1/κ + f'(v)))``, the slope floored at 10⁻³ (a map that folds back has none)."""
+    lag = 2.0 * jnp.log1p(head_lag * head_motion[..., 4])
+    if shape is None:
+        return lag - jnp.sum(jnp.log(coupling), axis=-1)
+    slope = 1.0 / coupling + coupling_shape(_undone(head_motion, head_lag), shape)[1]
+    return lag + jnp.sum(jnp.log(jnp.maximum(slope, 1e-3)), axis=-1)
 
 
 def gaze_angles(params: dict, arrays: ModelArrays) -> Float[Array, "T P 2"]:
     """The head-frame gaze angles the likelihood reads: measured, or from head pose (:func:`head_gaze_angles`)."""
     if not arrays.head_motion.shape[-1]:
         return arrays.gaze_angles
-    return head_gaze_angles(arrays.head_motion, params["coupling"], params["head_lag"])
+    return head_gaze_angles(arrays.head_motion, params["coupling"], params["head_lag"], params.get("coupling_shape"))
 
 
 def measurement_width(params: dict, arrays: ModelArrays) -> Float[Array, "T P"]:
@@ -319,7 +372,8 @@ def _head_only_terms(gaze, eyes, R, locations, window, width, head_motion, prior
 
 def _log_normaliser(people_logit, num_slots: int, alpha_object):
     """``log Σ_j exp(logit_j)`` over every candidate: people, ``K`` concurrences, elsewhere (logit 0)."""
-    terms = [logsumexp(people_logit, axis=-1), jnp.zeros(people_logit.shape[:2], people_logit.dtype)]
+    # floored: with nobody else present, a logsumexp of −inf alone has a NaN derivative in forward mode
+    terms = [logsumexp(jnp.maximum(people_logit, _LOG_FLOOR), axis=-1), jnp.zeros(people_logit.shape[:2], people_logit.dtype)]
     if num_slots:
         terms.append(jnp.broadcast_to(alpha_object + math.log(num_slots), people_logit.shape[:2]))
     return logsumexp(jnp.stack(terms), axis=0)
@@ -384,15 +438,15 @@ def _held_elsewhere(log_lik, directions, width, observed):
     return jnp.concatenate([jnp.zeros_like(held[:, :1]), held], axis=1)
 
 
-def _forward(log_prior, log_lik, held, observed, stay, shift=None):
+def _forward(log_prior, log_lik, held, observed, stay, shift=None, per_frame=False):
     """The forward algorithm of the sticky chain on blocks: ``(B, L, P, C)`` inputs, returns ``log p (B, P)``.
 
     ``α_t(j) = p(z_t = j | g_{≤t})``; a new block starts from ``π``, then
     ``α_t(j) ∝ (ρ α_{t−1}(j) e^{η_t(j)} + (1 − ρ) π_t(j)) p(g_t | j)``, the emission only where
     ``observed`` and ``η`` the held term: of a glance elsewhere (:func:`_held_elsewhere`, ``(…, 1)``: 0 for
     the other candidates) or of every candidate (``(…, C)``, with :func:`_held_spot`); ``log p`` sums the
-    log normalisers. The gradient with respect to ``shift``, added to every emission, is the posterior
-    ``P(z_t = j | g)``.
+    log normalisers (``per_frame``: each frame's, ``log p(g_t | g_{<t})``, ``(B, L, P)``). The gradient with
+    respect to ``shift``, added to every emission, is the posterior ``P(z_t = j | g)``.
 
     The recursion runs on probabilities, each frame's terms scaled by the largest new-target term
     ``m_t = max_j log π_t(j) p(g_t | j)``, so the sequential step is a multiply-add and a sum: in logs
@@ -423,6 +477,8 @@ def _forward(log_prior, log_lik, held, observed, stay, shift=None):
 
     swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
     _, norms = jax.lax.scan(step, jnp.zeros_like(new[:, 0]), (swap(new), swap(kept)))
+    if per_frame:  # log p(g_t | g_{<t}) of each frame of a block, (B, L, P)
+        return swap(jnp.log(norms)) + top[..., 0]
     return jnp.sum(jnp.log(norms), axis=0) + jnp.sum(top[..., 0], axis=1)
 
 
@@ -473,14 +529,15 @@ def _held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_varian
     return jnp.where(observed[..., None], held, 0.0)
 
 
-def _chain_log_likelihood(blocked_terms, observed, stay, shift=None, spot_variance=None):
-    """``log p (B, P)`` of candidate terms already in blocks ``(B, L, …)``: held glances and spots, then the forward pass."""
+def _chain_log_likelihood(blocked_terms, observed, stay, shift=None, spot_variance=None, per_frame=False):
+    """``log p (B, P)`` of candidate terms already in blocks ``(B, L, …)``: held glances and spots, then the forward pass
+    (``per_frame``: ``(B, L, P)``, each frame's ``log p(g_t | g_{<t})``)."""
     log_prior, log_lik, directions, width, residuals = blocked_terms
     held = _held_elsewhere(log_lik, directions, width, observed)[..., None]
     if spot_variance is not None:
         held = jnp.concatenate([_held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_variance),
                                 held], axis=-1)
-    return _forward(log_prior, log_lik, held, observed, stay, shift)
+    return _forward(log_prior, log_lik, held, observed, stay, shift, per_frame)
 
 
 def _blocked_log_likelihood(terms, present, stay, frames, shift=None, spot_variance=None):
@@ -523,8 +580,27 @@ def marginal_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior
                                       spot_variance=_spot_variance(params))
     if not arrays.head_motion.shape[-1]:
         return log_lik
-    jacobian = head_log_jacobian(arrays.head_motion, params["coupling"], params["head_lag"])[index]  # (B, L, P)
+    jacobian = head_log_jacobian(arrays.head_motion, params["coupling"], params["head_lag"],
+                                  params.get("coupling_shape"))[index]  # (B, L, P)
     return log_lik + jnp.sum(jnp.where(arrays.present[index] & valid[..., None], jacobian, 0.0), axis=1)
+
+
+def frame_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior = JointPrior()) -> Float[Array, "T P"]:
+    """``log p(g_ti | g_{<t, i})`` per frame and person (the chain restarting at each block): the terms that
+    :func:`marginal_log_likelihood` sums, in the order of the frames (0 where the gazer is absent; head pose only
+    with :func:`head_log_jacobian`). Their gradients are the scores of a time series, whose correlation from frame
+    to frame the model's own curvature does not see (:func:`~jaxgaze.joint.infer.fit_joint`'s coupling intervals)."""
+    T = arrays.present.shape[0]
+    index, valid = _blocks(T)
+    terms = tuple(a[index] for a in _candidate_terms(params, arrays, prior))
+    observed = arrays.present[index] & valid[..., None]
+    per_frame = _chain_log_likelihood(terms, observed, params["stay"], spot_variance=_spot_variance(params),
+                                      per_frame=True)
+    if arrays.head_motion.shape[-1]:
+        per_frame = per_frame + head_log_jacobian(arrays.head_motion, params["coupling"], params["head_lag"],
+                                  params.get("coupling_shape"))[index]
+    per_frame = jnp.where(observed, per_frame, 0.0)
+    return per_frame.reshape((-1,) + per_frame.shape[2:])[:T]
 
 
 def target_marginals(params: dict, arrays: ModelArrays, prior: JointPrior = JointPrior()
@@ -605,6 +681,10 @@ def joint_model(
             *(jnp.full((P, 2), c, dtype) for c in prior.coupling_concentration)).to_event(2))
         params["head_lag"] = numpyro.sample("head_lag", dist.HalfNormal(
             jnp.full((P,), prior.head_lag_scale, dtype)).to_event(1))
+        if prior.coupling_shape_scale is not None:
+            weights = numpyro.sample("coupling_shape", dist.Normal(
+                jnp.zeros((P, 2, COUPLING_SHAPE_BASIS), dtype), 1.0).to_event(3))
+            params["coupling_shape"] = weights * coupling_shape_spectrum(prior.coupling_shape_scale, dtype)
     arrays = ModelArrays(eye_positions, R_world_from_head, gaze_angles, present, speaking, measurement_scale, window,
                          to_people_head, head_motion, location_centres, calibration_points, calibration_mask,
                          wearer_index)
@@ -626,6 +706,7 @@ def joint_model(
         observed = local.present.reshape(index.shape + (P,)) & valid[..., None]
         log_lik = jnp.sum(_chain_log_likelihood(terms, observed, stay, spot_variance=_spot_variance(params)), axis=-1)
         if head_motion.shape[-1]:
-            jacobian = head_log_jacobian(local.head_motion, params["coupling"], params["head_lag"])
+            jacobian = head_log_jacobian(local.head_motion, params["coupling"], params["head_lag"],
+                                  params.get("coupling_shape"))
             log_lik = log_lik + jnp.sum(jnp.where(observed, jacobian.reshape(observed.shape), 0.0), axis=(1, 2))
         numpyro.factor("gaze", log_lik)

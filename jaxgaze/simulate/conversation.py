@@ -64,7 +64,8 @@ Generative model, for one scene:
 6. **Head.** The head turns by ``κ`` times the line of sight's azimuth and
    elevation relative to the body direction (horizontal, towards the centre),
    low-passed by a causal exponential filter with time constant
-   ``head_lag_s``, plus a smooth sway of up to ``head_sway_deg`` and a smooth
+   ``head_lag_s`` (with ``head_turn_limit_deg = L > 0`` the turn saturates as
+   ``L tanh(κ θ / L)``), plus a smooth sway of up to ``head_sway_deg`` and a smooth
    roll of up to ``head_roll_deg``:
    ``true_R_world_from_head = R_z(yaw) R_y(−pitch) R_x(roll)``
    (:func:`jaxgaze.geometry.head_pose_to_rotation`).
@@ -216,6 +217,8 @@ class ConversationConfig(NamedTuple):
         tracker_jitter_deg: sd of the i.i.d. head-tracker error, per axis and frame.
         measurement_scale_deg: range of the per-frame measurement noise sd ``s``.
         dropout_fraction: expected fraction of frames lost to tracker dropouts.
+        head_turn_limit_deg: ``0``: the head turns ``κ`` of the line of sight (linear); ``L > 0``: the
+            turn saturates, ``L tanh(κ θ / L)`` per axis (a non-linear head–gaze map).
         dropout_s: length of a dropout.
         late_early_prob: probability that one person arrives late or leaves early.
         late_early_fraction: fraction of the scene that person misses.
@@ -268,6 +271,7 @@ class ConversationConfig(NamedTuple):
     tracker_jitter_deg: float = 0.5
     measurement_scale_deg: tuple[float, float] = (0.5, 3.0)
     dropout_fraction: float = 0.025
+    head_turn_limit_deg: float = 0.0
     dropout_s: tuple[float, float] = (0.2, 1.5)
     late_early_prob: float = 0.3
     late_early_fraction: tuple[float, float] = (0.1, 0.3)
@@ -434,6 +438,7 @@ def _check_config(config: ConversationConfig) -> ConversationConfig:
         c[name] = check_number(name, getattr(config, name), lo=0.0, hi=30.0)
     c["measurement_scale_deg"] = check_pair("measurement_scale_deg", config.measurement_scale_deg, lo=0.0, hi=45.0)
     c["dropout_fraction"] = check_number("dropout_fraction", config.dropout_fraction, lo=0.0, hi=0.5)
+    c["head_turn_limit_deg"] = check_number("head_turn_limit_deg", config.head_turn_limit_deg, lo=0.0, hi=180.0)
     c["dropout_s"] = check_pair("dropout_s", config.dropout_s, lo=0.0, lo_open=True)
     c["late_early_prob"] = check_number("late_early_prob", config.late_early_prob, lo=0.0, hi=1.0)
     c["late_early_fraction"] = check_pair("late_early_fraction", config.late_early_fraction, lo=0.0, hi=0.9)
@@ -822,7 +827,11 @@ def simulate_conversation(
     sight_yaw, sight_pitch = _direction_to_yaw_pitch(sight)
     rel = np.stack([_wrap(sight_yaw - body_yaw), sight_pitch], axis=-1)
     rel = np.where(present[..., None], rel, 0.0)
-    head = _low_pass(kappa[:, None] * rel, config.head_lag_s, fps)
+    turn = kappa[:, None] * rel
+    if config.head_turn_limit_deg > 0:  # the turn saturates: a non-linear head–gaze map
+        limit = config.head_turn_limit_deg * deg
+        turn = limit * np.tanh(turn / limit)
+    head = _low_pass(turn, config.head_lag_s, fps)
     head = head + config.head_sway_deg * deg * _smooth(rng, times, (P, 2), periods=(2.0, 10.0))
     roll = config.head_roll_deg * deg * _smooth(rng, times, (P,), periods=(3.0, 12.0))
     R_true = _head_pose_to_rotation(body_yaw + head[..., 0], head[..., 1], roll)

@@ -21,9 +21,10 @@ from jaxgaze.io.joint import read_joint_gaze
 from jaxgaze.io.tools.openface import OpenFaceFileError, write_openface_faces
 from jaxgaze.joint import JointPrior, joint_data, joint_start
 from jaxgaze.joint import rivals
-from jaxgaze.joint.infer import _arrays, _refine_start, _start_values, _unconstrained
+from jaxgaze.joint.infer import _arrays, _long_run_variance, _refine_start, _start_values, _unconstrained
 from jaxgaze.joint.init import COUPLING_GRID, coupling_profile
-from jaxgaze.joint.model import head_gaze_angles, marginal_log_likelihood
+from jaxgaze.joint.model import (COUPLING_SHAPE_BASIS, COUPLING_SHAPE_HALF_WIDTH, frame_log_likelihood,
+                                 head_gaze_angles, marginal_log_likelihood)
 from jaxgaze.simulate import simulate_conversation
 
 
@@ -61,6 +62,16 @@ def _log_normal2(r, w):
     return -0.5 * float(r @ r) / w**2 - math.log(2 * math.pi * w**2)
 
 
+def _shape(v, shape, i):
+    """``Σ_m c_m L^{−1/2} sin(π m (v + L) / 2L)``, the reduced-rank GP's basis (Solin & Särkkä 2020, eq. 56) written
+    out; 0 without a shape."""
+    if shape is None:
+        return 0.0
+    L, m = COUPLING_SHAPE_HALF_WIDTH, np.arange(1, COUPLING_SHAPE_BASIS + 1)
+    phi = jnp.sin(math.pi * m * (v[..., None] + L) / (2 * L)) / math.sqrt(L)
+    return jnp.sum(phi * jnp.asarray(shape[i]), axis=-1)
+
+
 def _brute_force(data, params, i):
     """``log p(head angles of person i)``: every target sequence enumerated, the Jacobian by automatic differentiation.
 
@@ -80,7 +91,7 @@ def _brute_force(data, params, i):
         after = jnp.asarray(np.concatenate([[False], present[1:] & present[:-1]]))[:, None]
         x = h + jnp.where(after, tau * data.fps * (h - prev), 0.0)
         rest = -b / (1.0 / kappa - 1.0)  # ref = 0 in these coordinates
-        return rest + (x - rest) / kappa
+        return rest + (x - rest) / kappa + _shape(x, params.get("coupling_shape"), i)
 
     jac = np.asarray(jax.jacfwd(lambda h: gaze_world(h.reshape(T, 2)).reshape(-1))(jnp.asarray(h0).reshape(-1)))
     keep = np.repeat(present, 2)
@@ -132,37 +143,92 @@ def _brute_force(data, params, i):
 _marginal_log_likelihood = jax.jit(marginal_log_likelihood)
 
 
-@pytest.mark.parametrize("gap, share", [(None, None), ((1, 0), None), ((1, 0), 0.6)])
-def test_head_only_likelihood_matches_brute_force(x64, gap, share):
-    """With ``share``, a fixation's spot on the plane of angles (``held_cone_share``)."""
+@pytest.mark.parametrize("gap, share, shape", [(None, None, False), ((1, 0), None, False), ((1, 0), 0.6, False),
+                                               ((1, 0), None, True)])
+def test_head_only_likelihood_matches_brute_force(x64, gap, share, shape):
+    """With ``share``, a fixation's spot on the plane of angles (``held_cone_share``); with ``shape``, a non-linear
+    head–gaze map (``coupling_shape``), whose Jacobian the brute force takes by automatic differentiation."""
     data, centres, params = _tiny(T=3 if share is None else 4, gap=gap)
     if share is not None:
         params = {**params, "held_cone_share": share}
+    if shape:
+        params = {**params, "coupling_shape": 0.01 * np.random.default_rng(1).normal(size=(3, 2, COUPLING_SHAPE_BASIS))}
     arrays = _arrays(data, centres, jnp.float64)
     total = np.asarray(_marginal_log_likelihood(jax.tree_util.tree_map(jnp.asarray, params), arrays)).sum(axis=0)
     for i in range(data.num_people):
         assert total[i] == pytest.approx(_brute_force(data, params, i), rel=1e-10)
-    if share is not None:  # the spot changes the likelihood here
-        without = {k: v for k, v in params.items() if k != "held_cone_share"}
-        assert abs(sum(_brute_force(data, params, i) - _brute_force(data, without, i) for i in range(3))) > 0.1
+    for site in ("held_cone_share", "coupling_shape"):  # the spot, and the shape, change the likelihood here
+        if site in params:
+            without = {k: v for k, v in params.items() if k != site}
+            assert abs(sum(_brute_force(data, params, i) - _brute_force(data, without, i) for i in range(3))) > 0.1
 
 
 def test_head_only_gradients_match_finite_differences(x64):
     data, centres, params = _tiny(seed=3, T=8)
+    params["coupling_shape"] = 0.01 * np.random.default_rng(2).normal(size=(3, 2, COUPLING_SHAPE_BASIS))
     arrays = _arrays(data, centres, jnp.float64)
-    free = {k: jnp.asarray(params[k]) for k in ("coupling", "head_lag", "bias", "cone_width")}
+    free = {k: jnp.asarray(params[k]) for k in ("coupling", "head_lag", "bias", "cone_width", "coupling_shape")}
 
     def f(z):
         return jnp.sum(marginal_log_likelihood({**params, **z}, arrays))
 
     grad = jax.jit(jax.grad(f))(free)
     f = jax.jit(f)
-    for site, index in (("coupling", (1, 0)), ("coupling", (2, 1)), ("head_lag", (0,)), ("bias", (2, 0))):
+    for site, index in (("coupling", (1, 0)), ("coupling", (2, 1)), ("head_lag", (0,)), ("bias", (2, 0)),
+                        ("coupling_shape", (0, 1, 3))):
         step = 1e-6
         up = {**free, site: free[site].at[index].add(step)}
         down = {**free, site: free[site].at[index].add(-step)}
         numeric = (float(f(up)) - float(f(down))) / (2 * step)
         assert float(grad[site][index]) == pytest.approx(numeric, rel=1e-5, abs=1e-6)
+
+
+@pytest.mark.parametrize("gap, share", [(None, None), ((2, 1), 0.6)])
+def test_each_frames_term_is_the_prefix_likelihood_it_adds(x64, gap, share):
+    """``log p(h_t | h_{<t})`` of every frame, summed to ``t``, is the likelihood of the first ``t + 1`` frames
+    (brute force: :func:`test_head_only_likelihood_matches_brute_force`), with the spot and a gap."""
+    data, centres, params = _tiny(T=4, gap=gap)
+    if share is not None:
+        params = {**params, "held_cone_share": share}
+    params = jax.tree_util.tree_map(jnp.asarray, params)
+    arrays = _arrays(data, centres, jnp.float64)
+    frames = np.asarray(frame_log_likelihood(params, arrays))  # (T, P)
+    for t in range(1, 5):
+        prefix = arrays._replace(**{f: getattr(arrays, f)[:t] for f in arrays._fields[:9]})
+        np.testing.assert_allclose(frames[:t].sum(axis=0), np.asarray(marginal_log_likelihood(params, prefix)).sum(0),
+                                   rtol=1e-10)
+    if gap is not None:
+        assert frames[gap] == 0.0
+
+
+def test_frame_scores_are_finite_for_someone_alone(x64):
+    """Forward-mode scores (the couplings' widening) of frames where the gazer is the only one present equal the
+    reverse-mode gradient; a logsumexp over nobody gave NaN tangents (two 3-person scenes of the experiment)."""
+    data, centres, params = _tiny(T=4, gap=(slice(1, 3), slice(1, 3)))  # person 0 alone in frames 1 and 2
+    params = jax.tree_util.tree_map(jnp.asarray, params)
+    arrays = _arrays(data, centres, jnp.float64)
+
+    free = {k: params[k] for k in ("coupling", "alpha_person", "speaker_effect", "bias")}
+
+    def frames(z):
+        return jnp.sum(frame_log_likelihood({**params, **z}, arrays), axis=1)
+
+    for site in free:
+        forward = np.asarray(jax.jacfwd(frames)(free)[site])
+        assert np.all(np.isfinite(forward)), site
+        np.testing.assert_allclose(forward, np.asarray(jax.jacrev(frames)(free)[site]), rtol=1e-9, atol=1e-12)
+
+
+def test_the_long_run_variance_of_a_moving_average():
+    """``a_t = e_t + e_{t−1}`` (unit ``e``): the sum of ``T`` terms has variance ``≈ 4 T``; Bartlett's estimate with
+    ``L`` lags is ``T (2 + 2 (1 − 1/(L + 1)))``, ``2 T`` without lags (the frames counted as independent)."""
+    e = np.random.default_rng(0).normal(size=(200_001, 1))
+    a = e[1:] + e[:-1]
+    T = a.shape[0]
+    assert _long_run_variance(a, 0)[0] == pytest.approx(2 * T, rel=0.01)
+    for lags in (1, 4, 20):
+        assert _long_run_variance(a, lags)[0] == pytest.approx(T * (2 + 2 * (1 - 1 / (lags + 1))), rel=0.01)
+    assert _long_run_variance(e, 20)[0] == pytest.approx(T, rel=0.02)  # independent terms: no widening
 
 
 def test_head_motion_is_the_backward_rate_and_wraps_at_pi():

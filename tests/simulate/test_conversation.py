@@ -163,6 +163,29 @@ def test_held_cone_share_holds_the_cone_offset_for_a_fixation():
     with pytest.raises(ValueError, match="held_cone_share"):
         conversation_config(held_cone_share=1.5)
 
+def test_a_head_turn_limit_saturates_the_turn():
+    """``head_turn_limit_deg = L``: the head turns ``L tanh(κ θ / L)`` of the line of sight's azimuth and elevation
+    ``θ`` from the body (no lag, sway or tracker error here: the reported head is the true one)."""
+    quiet = dict(head_lag_s=0.0, head_sway_deg=0.0, head_roll_deg=0.0, tracker_drift_deg=0.0, tracker_jitter_deg=0.0)
+    _wrap = lambda a: np.angle(np.exp(1j * a))  # noqa: E731
+    for limit in (0.0, 20.0):
+        config = ConversationConfig()._replace(head_turn_limit_deg=limit, **quiet)
+        c = simulate_conversation(jax.random.key(3), num_people=5, duration_s=20.0, config=config)
+        P = c.target.shape[1]
+        t, i = np.nonzero(c.present & (c.target >= 0) & (c.target < P))
+        sight = c.eye_positions[t, c.target[t, i]] - c.eye_positions[t, i]
+        yaw, pitch = _direction_to_yaw_pitch(sight)
+        turn = c.head_fraction[i, None] * np.stack([_wrap(yaw - c.body_yaw[i]), pitch], axis=-1)
+        if limit:
+            turn = math.radians(limit) * np.tanh(turn / math.radians(limit))
+        head_yaw, head_pitch = _direction_to_yaw_pitch(c.R_world_from_head[t, i, :, 0])
+        np.testing.assert_allclose(_wrap(head_yaw - c.body_yaw[i]), turn[:, 0], atol=1e-6)
+        np.testing.assert_allclose(head_pitch, turn[:, 1], atol=1e-6)
+        assert np.abs(turn).max() > math.radians(15.0)  # turns that reach into the saturation
+    with pytest.raises(ValueError, match="head_turn_limit_deg"):
+        simulate_conversation(jax.random.key(3), config=ConversationConfig()._replace(head_turn_limit_deg=-1.0))
+
+
 def test_targets_and_presence(scenes):
     for c in scenes:
         P, K = c.num_people, c.num_objects
