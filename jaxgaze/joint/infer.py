@@ -231,7 +231,7 @@ def _frame_scores(unconstrained: dict, arrays: ModelArrays, prior: JointPrior):
 
 def _widen(draws: dict, factor: np.ndarray) -> dict:
     """The coupling draws ``(chains, S, P, 2)`` spread ``factor`` times further from their mean, on the logit scale."""
-    kappa = np.asarray(draws["coupling"], np.float64)
+    kappa = np.clip(np.asarray(draws["coupling"], np.float64), 1e-12, 1.0 - 1e-12)  # float32 draws may round to 1
     logit = np.log(kappa) - np.log1p(-kappa)
     centre = logit.reshape((-1,) + logit.shape[2:]).mean(axis=0)
     widened = centre + factor * (logit - centre)
@@ -804,7 +804,9 @@ def fit_joint(
             carries weight, SVI only the best (its ``result`` is ``ambiguous`` all the same). NUTS uses the inverse Hessian of the
             potential there as its mass matrix, fixed (only the step size adapts in
             the warm-up); with wearers of head-mounted cameras, whose eyes the start
-            holds, it learns the mass matrix in the warm-up windows instead.
+            holds, it learns the mass matrix in the warm-up windows instead. For head pose only
+            the couplings' draws are then widened for head errors correlated over seconds
+            (:func:`_coupling_widening`).
         progress: progress bars on stderr.
         throw: ``False`` (the default, as in every jaxgaze fit): a failure is the posterior's
             ``result``; ``True``: raise :class:`~jaxgaze.results.FitError`, whose ``fit`` is that

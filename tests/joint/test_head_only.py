@@ -21,7 +21,7 @@ from jaxgaze.io.joint import read_joint_gaze
 from jaxgaze.io.tools.openface import OpenFaceFileError, write_openface_faces
 from jaxgaze.joint import JointPrior, joint_data, joint_start
 from jaxgaze.joint import rivals
-from jaxgaze.joint.infer import _arrays, _long_run_variance, _refine_start, _start_values, _unconstrained
+from jaxgaze.joint.infer import _arrays, _long_run_variance, _refine_start, _start_values, _unconstrained, _widen
 from jaxgaze.joint.init import COUPLING_GRID, coupling_profile
 from jaxgaze.joint.model import (COUPLING_SHAPE_BASIS, COUPLING_SHAPE_HALF_WIDTH, frame_log_likelihood,
                                  head_gaze_angles, marginal_log_likelihood)
@@ -217,6 +217,22 @@ def test_frame_scores_are_finite_for_someone_alone(x64):
         forward = np.asarray(jax.jacfwd(frames)(free)[site])
         assert np.all(np.isfinite(forward)), site
         np.testing.assert_allclose(forward, np.asarray(jax.jacrev(frames)(free)[site]), rtol=1e-9, atol=1e-12)
+
+
+def test_widening_spreads_the_couplings_logits_about_their_mean():
+    """Each coupling's logits move ``factor`` times further from their mean over all chains; other sites are kept, and
+    a float32 draw that rounded to 1 stays finite."""
+    rng = np.random.default_rng(0)
+    kappa = (1 / (1 + np.exp(-rng.normal(0.3, 0.1, (2, 50, 3, 2))))).astype(np.float32)
+    kappa[0, 0, 0, 0] = 1.0
+    draws = {"coupling": kappa, "bias": rng.normal(size=(2, 50, 3, 2))}
+    factor = np.array([[1.0, 2.0], [1.5, 1.0], [3.0, 1.2]])
+    out = _widen(draws, factor)
+    assert out["bias"] is draws["bias"] and out["coupling"].dtype == np.float32
+    assert np.all(np.isfinite(out["coupling"])) and np.all((out["coupling"] > 0) & (out["coupling"] <= 1))
+    logit = lambda k: np.log(k) - np.log1p(-k)  # noqa: E731
+    before, after = logit(kappa[:, 1:].astype(float)), logit(out["coupling"][:, 1:].astype(float))
+    np.testing.assert_allclose(after.std(axis=(0, 1)), factor * before.std(axis=(0, 1)), rtol=1e-4)
 
 
 def test_the_long_run_variance_of_a_moving_average():
