@@ -282,6 +282,11 @@ def head_log_jacobian(head_motion: Float[Array, "T P 5"], coupling: Float[Array,
     return lag + jnp.sum(jnp.log(jnp.maximum(slope, 1e-3)), axis=-1)
 
 
+def _jacobian(params: dict, head_motion) -> Float[Array, "T P"]:
+    """:func:`head_log_jacobian` of the parameters (head pose only)."""
+    return head_log_jacobian(head_motion, params["coupling"], params["head_lag"], params.get("coupling_shape"))
+
+
 def gaze_angles(params: dict, arrays: ModelArrays) -> Float[Array, "T P 2"]:
     """The head-frame gaze angles the likelihood reads: measured, or from head pose (:func:`head_gaze_angles`)."""
     if not arrays.head_motion.shape[-1]:
@@ -580,8 +585,7 @@ def marginal_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior
                                       spot_variance=_spot_variance(params))
     if not arrays.head_motion.shape[-1]:
         return log_lik
-    jacobian = head_log_jacobian(arrays.head_motion, params["coupling"], params["head_lag"],
-                                  params.get("coupling_shape"))[index]  # (B, L, P)
+    jacobian = _jacobian(params, arrays.head_motion)[index]  # (B, L, P)
     return log_lik + jnp.sum(jnp.where(arrays.present[index] & valid[..., None], jacobian, 0.0), axis=1)
 
 
@@ -597,8 +601,7 @@ def frame_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior = 
     per_frame = _chain_log_likelihood(terms, observed, params["stay"], spot_variance=_spot_variance(params),
                                       per_frame=True)
     if arrays.head_motion.shape[-1]:
-        per_frame = per_frame + head_log_jacobian(arrays.head_motion, params["coupling"], params["head_lag"],
-                                  params.get("coupling_shape"))[index]
+        per_frame = per_frame + _jacobian(params, arrays.head_motion)[index]
     per_frame = jnp.where(observed, per_frame, 0.0)
     return per_frame.reshape((-1,) + per_frame.shape[2:])[:T]
 
@@ -706,7 +709,6 @@ def joint_model(
         observed = local.present.reshape(index.shape + (P,)) & valid[..., None]
         log_lik = jnp.sum(_chain_log_likelihood(terms, observed, stay, spot_variance=_spot_variance(params)), axis=-1)
         if head_motion.shape[-1]:
-            jacobian = head_log_jacobian(local.head_motion, params["coupling"], params["head_lag"],
-                                  params.get("coupling_shape"))
+            jacobian = _jacobian(params, local.head_motion)
             log_lik = log_lik + jnp.sum(jnp.where(observed, jacobian.reshape(observed.shape), 0.0), axis=(1, 2))
         numpyro.factor("gaze", log_lik)
