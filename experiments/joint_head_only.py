@@ -72,6 +72,9 @@ def evaluate_scene(key, people, duration_s, warmup, draws, compare, prior=JointP
     error = np.asarray(post.bias) - bias
     error[:, 0] = np.angle(np.exp(1j * error[:, 0]))
     error_deg = np.degrees(np.linalg.norm(error, axis=-1))
+    offsets = np.asarray(post.samples["bias"]) - bias  # (S, P, 2): the draws about the truth, yaw wrapped
+    offsets[..., 0] = np.angle(np.exp(1j * offsets[..., 0]))
+    b_lo, b_hi = np.quantile(offsets, [0.05, 0.95], axis=0)
     result = name(post.result)
     row = {"people": P, "result": result, "seconds": seconds, "spot_log_bayes_factor": post.spot_log_bayes_factor,
            "spot": "held_cone_share" in post.samples,
@@ -81,7 +84,7 @@ def evaluate_scene(key, people, duration_s, warmup, draws, compare, prior=JointP
            "kappa_error": (kappa.mean(0) - truth).ravel().tolist(),
            "kappa_cover": ((truth >= lo) & (truth <= hi)).ravel().tolist(),
            "lag": np.asarray(post.samples["head_lag"]).mean(0).tolist(),
-           "bias_error_deg": error_deg.tolist(),
+           "bias_error_deg": error_deg.tolist(), "bias_cover": ((b_lo <= 0) & (b_hi >= 0)).ravel().tolist(),
            "confidently_wrong": confidently_wrong(result, error_deg, distance_sd(post.samples["bias"], bias))}
     if compare:
         measured = joint_data(scene.eye_positions, scene.R_world_from_head, scene.gaze_angles, present=scene.present,
@@ -112,6 +115,8 @@ def summarise(done: dict) -> str:
              f"{np.mean(k_cover):.2f} (yaw {np.mean(k_cover[0::2]):.2f}, tilt {np.mean(k_cover[1::2]):.2f}); "
              f"median error {np.median(k_err):.3f}",
              f"confidently wrong people: {wrong}; results {results}",
+             *([f"bias 90% coverage {np.mean(np.concatenate([r['bias_cover'] for r in rows])):.2f} "
+                f"(yaw and tilt, {sum(len(r['bias_cover']) for r in rows)})"] if all("bias_cover" in r for r in rows) else []),
              f"seconds per fit: mean {np.mean([r['seconds'] for r in rows]):.0f}"]
     compared = [r for r in rows if "gaze_seconds" in r]
     if compared:

@@ -42,7 +42,11 @@ def _coupling(posterior) -> list[str]:
         return []
     kappa, low_high = posterior.samples["coupling"].mean(axis=0), posterior.interval("coupling")
     lag = posterior.samples["head_lag"].mean(axis=0)
-    return ["head-gaze coupling (share of the gaze's turn the head makes; yaw, tilt; 90% interval): " + "; ".join(
+    factor = getattr(posterior, "shape_log_bayes_factor", None)
+    shape = [] if factor is None else [
+        f"head-gaze map: {'a Gaussian process on the linear map' if 'coupling_shape' in posterior.samples else 'linear'}"
+        f" (the data favour the Gaussian process by a factor of {math.exp(min(factor, 700.0)):.2g}; 3 keeps it)"]
+    return shape + ["head-gaze coupling (share of the gaze's turn the head makes; yaw, tilt; 90% interval): " + "; ".join(
         f"{n} {k[0]:.2f} ({i[0, 0]:.2f}-{i[0, 1]:.2f}), {k[1]:.2f} ({i[1, 0]:.2f}-{i[1, 1]:.2f})"
         for n, k, i in zip(posterior.people, kappa, low_high)),
         "head lag s: " + "; ".join(f"{n} {t:.2f}" for n, t in zip(posterior.people, lag))]

@@ -61,6 +61,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     a("--seed", default="0", metavar="S", help="random seed (default 0)")
     a("--head-only", action="store_true", help="no eye tracker: the gaze from head pose alone, with each person's "
       "head-gaze coupling learnt (gaze columns are ignored and may be absent)")
+    a("--head-gaze-gp", default=None, metavar="RADIANS", help="with --head-only: add to each person's linear "
+      "head-gaze map a Gaussian process of this amplitude (gaze radians, e.g. 0.2), for heads whose turn "
+      "saturates; slower (2-14 times in our runs), and the linear map is as good where heads turn in proportion")
     a("--min-confidence", default="0.75", metavar="C", help="OpenFace: drop frames with confidence < C (default 0.75)")
     add_trust_units(p)
     add_quiet(p)
@@ -136,13 +139,19 @@ def _file_of(gaze, people, message: str):
 def run(args) -> int:
     """``jaxgaze joint``: GAZE files and speech → :func:`~jaxgaze.joint.fit_joint` → OUT.nc (and --per-frame)."""
     import jax
-    from jaxgaze.joint import fit_joint, joint_data
+    from jaxgaze.joint import JointPrior, fit_joint, joint_data
     from jaxgaze.results import succeeded
 
-    warmup, draws, steps, seed, window_s, min_confidence, args.fps = (_number(o, v, t) for o, v, t in (
+    warmup, draws, steps, seed, window_s, min_confidence, args.fps, gp = (_number(o, v, t) for o, v, t in (
         ("--warmup", args.warmup, int_at_least(1)), ("--draws", args.draws, int_at_least(8)),
         ("--steps", args.steps, int_at_least(10)), ("--seed", args.seed, int), ("--window-s", args.window_s,
-        positive_float), ("--min-confidence", args.min_confidence, float), ("--fps", args.fps, positive_float)))
+        positive_float), ("--min-confidence", args.min_confidence, float), ("--fps", args.fps, positive_float),
+        ("--head-gaze-gp", args.head_gaze_gp, positive_float)))
+    if gp is not None and not args.head_only:
+        raise CommandError("--head-gaze-gp is a head-gaze map: it needs --head-only")
+    if gp is not None and gp > 1.0:
+        raise CommandError(f"--head-gaze-gp {gp:g}: the amplitude is in radians (0.1-0.5 is typical), not degrees")
+    prior = JointPrior(coupling_shape_scale=gp)
     with warnings.catch_warnings(record=True) as caught:  # printed once every input has been checked
         warnings.simplefilter("always")
         gaze = read_joint_gaze(args.gaze, min_confidence=min_confidence, head_only=args.head_only)
@@ -178,7 +187,8 @@ def run(args) -> int:
         with warnings.catch_warnings(record=True) as caught:  # NumPy's and arviz's numerical noise is dropped
             warnings.simplefilter("always")
             posterior = fit_joint(data, key=jax.random.key(seed), method=args.method, num_warmup=warmup,
-                                  num_samples=draws, num_steps=steps, progress=show_progress(args), throw=False)
+                                  num_samples=draws, num_steps=steps, prior=prior, progress=show_progress(args),
+                                  throw=False)
     except ValueError as error:  # joint_data counts frames from 0: name them by their ids in the files
         raise CommandError("the recording is not usable: " + re.sub(r"\bframe (\d+)\b", lambda m: (
             f"frame {gaze.frames[min(int(m[1]), gaze.frames.size - 1)]}"), str(error))) from None

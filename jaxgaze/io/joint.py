@@ -357,7 +357,8 @@ def write_joint_netcdf(path, posterior) -> str:
 
 def _set_result(idata, posterior) -> None:
     """The fit's ``result`` and its ``alternatives`` (JSON: person, bias and sd in degrees, weight, log evidence
-    gap) as attributes of the posterior group, and ``spot_log_bayes_factor`` where a fixation's spot was asked for."""
+    gap) as attributes of the posterior group, and ``spot_log_bayes_factor`` where a fixation's spot was asked for
+    (``shape_log_bayes_factor`` where a Gaussian-process head-gaze map was)."""
     result = getattr(posterior, "result", None)
     if result is None or "posterior" not in idata.groups():
         return
@@ -367,6 +368,7 @@ def _set_result(idata, posterior) -> None:
         {"person": people[a.person], "bias_deg": np.degrees(a.bias).round(4).tolist(),
          "bias_sd_deg": np.degrees(a.bias_sd).round(4).tolist(), "weight": round(float(a.weight), 6),
          "log_evidence_gap": round(float(a.log_evidence_gap), 6)} for a in getattr(posterior, "alternatives", ())])
-    factor = getattr(posterior, "spot_log_bayes_factor", None)
-    if factor is not None:  # a fixation's spot was asked for: kept where positive
-        idata.posterior.attrs["spot_log_bayes_factor"] = round(float(factor), 6)
+    for attr in ("spot_log_bayes_factor", "shape_log_bayes_factor"):  # asked for: a spot, a GP head-gaze map
+        factor = getattr(posterior, attr, None)
+        if factor is not None:
+            idata.posterior.attrs[attr] = round(float(factor), 6)

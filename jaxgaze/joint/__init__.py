@@ -13,6 +13,8 @@ from its module (``from jaxgaze.joint.model import joint_model``).
 | Park eq. 3 with a fixation's spot (issue 37): the residuals of one fixation share an offset ``N(0, c h²)`` | ``model._held_spot``, ``JointPrior.held_scale``, ``model.held_cone_share`` | ``joint/model.py`` |
 | Kass & Raftery 1995, eq. 1: the spot kept where its Bayes factor exceeds 3 | ``infer._choose_spot``, ``infer._spot_log_bayes_factor`` | ``joint/infer.py`` |
 | Stiefelhagen & Zhu 2002, Ba & Odobez 2009, Yücel et al. 2013 (linear): head pose only, ``κ (gaze − rest) = head + τ ḣ − rest`` | ``model.head_gaze_angles``, ``model.head_log_jacobian``, ``joint_data(…, gaze_angles=None)`` | ``joint/model.py``, ``joint/data.py`` |
+| Yücel et al. 2013, Sec. V; Solin & Särkkä 2020, eq. 56: the head-to-gaze map as a reduced-rank GP, kept where its Bayes factor against the linear map exceeds 3 | ``model.coupling_shape``, ``JointPrior.coupling_shape_scale``, ``infer._choose_shape`` | ``joint/model.py``, ``joint/infer.py`` |
+| Chandler & Bate 2007, Sec. 3; Newey & West 1987, eq. 2: head pose only, the couplings' draws widened to the sandwich variance of the frames' scores | ``infer._coupling_widening``, ``model.frame_log_likelihood`` | ``joint/infer.py``, ``joint/model.py`` |
 | Siegfried eq. 2, Park Sec. 3.3: the pipeline as the start | ``joint_start``, ``init.speaker_rule_bias``, ``init.initial_concurrences`` | ``joint/init.py`` |
 | Siegfried eq. 1, Park eq. 3: every person's rival bias modes before sampling, Laplace evidence, ``ambiguous`` | ``rivals.bias_profile``, ``rivals.profile_rivals``, ``rivals.Alternative`` | ``joint/rivals.py`` |
 | NUTS, SVI, diagnostics, predictive check | ``fit_joint``, ``JointPosterior``, ``infer.SVIDiagnostics`` | ``joint/infer.py`` |

@@ -66,6 +66,9 @@ _MIN_CURVATURE = 0.01
 #: 1995, Sec. 3.2). On recordings without spots the factor's log was −2.4 to +0.6 (6 simulated scenes; +0.6 kept
 #: the spot on one of ``bench_joint``'s), with ``c = 0.2`` 50–63 and with ``c = 0.5`` 190.
 SPOT_MIN_LOG_FACTOR = math.log(3.0)
+#: The least log Bayes factor of a Gaussian-process head–gaze map against the linear one that keeps it
+#: (:func:`_choose_shape`; Kass & Raftery 1995's "positive" evidence, as for the spot).
+SHAPE_MIN_LOG_FACTOR = math.log(3.0)
 #: Points of the quadrature over the spot's ``s ≥ 0`` (:func:`_spot_log_bayes_factor`), squared-spaced.
 _SPOT_POINTS = 48
 #: Seconds over which a head's errors are taken as correlated when the couplings' intervals are widened
@@ -342,6 +345,34 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
             scored, k, unconstrained, arrays = best
             del kept[k]
     return unconstrained, arrays, kept, scored
+
+
+def _choose_shape(linear_mode: dict, arrays: ModelArrays, prior: JointPrior, scored):
+    """A Gaussian-process head–gaze map (``JointPrior.coupling_shape_scale``) kept only where the data favour it over
+    the linear map: the Laplace evidences of the two models, each at its own mode (MacKay 2003, eq. 28.10), their
+    difference the log Bayes factor (Kass & Raftery 1995, eq. 1), kept above :data:`SHAPE_MIN_LOG_FACTOR`.
+
+    ``linear_mode`` is the linear model's mode and ``scored`` its ``(evidence, inverse Hessian)``, both with the
+    fixation's spot where :func:`_choose_spot` kept one; the process's mode is found from there, its weights at 0
+    (:func:`_to_mode`), as the spot's is from the mode without it. Yücel et al.'s map as a latent function is the
+    right one for heads whose turn saturates, but where heads turn in proportion its weights only blur ``κ`` and
+    cost 2–14× the linear fit (RESULTS). Returns the prior to go on with, its mode, the log Bayes factor and the
+    chosen mode's ``(evidence, inverse Hessian)``.
+
+    Weighed without the spot, a head's errors correlated over seconds count as evidence for any flexible map:
+    on the issue-38 conversations (seed 38, 60 s) the process was favoured by ``e^260`` on a saturating scene and
+    ``e^46`` on another, but lost (``e^−1.2``) on the scene it helped most (right 0.78 → 0.95); with the spot the
+    factors were ``e^1.7``, ``e^6.9`` and ``e^108``, and ``e^−103`` where heads turn in proportion (RESULTS). The
+    other way round, the linear mode found from the process's without its weights, BFGS stopped 248 nats of
+    potential short of the linear mode on a 4-person scene.
+    """
+    weights = jnp.zeros(linear_mode["coupling"].shape + (COUPLING_SHAPE_BASIS,), linear_mode["coupling"].dtype)
+    shape_mode = _to_mode({**linear_mode, "coupling_shape": weights}, arrays, prior)
+    shape_scored = _laplace_evidence(shape_mode, arrays, prior)
+    log_factor = shape_scored[0] - scored[0]
+    if math.isfinite(log_factor) and log_factor > SHAPE_MIN_LOG_FACTOR:
+        return prior, shape_mode, log_factor, shape_scored
+    return prior._replace(coupling_shape_scale=None), linear_mode, log_factor, scored
 
 
 def _choose_spot(plain_mode: dict, arrays: ModelArrays, prior: JointPrior):
@@ -630,6 +661,10 @@ class JointPosterior(NamedTuple):
             spot was kept, and ``held_cone_share`` is among the draws, where it exceeds ``log 3``
             (:data:`SPOT_MIN_LOG_FACTOR`). ``None``: no spot asked for, or wearers of head-mounted cameras
             (their start is no mode to weigh it at; the fit is without one).
+        shape_log_bayes_factor: head pose only with a Gaussian-process head–gaze map asked for
+            (``JointPrior.coupling_shape_scale``): the log Bayes factor of that map against the linear one
+            (:func:`_choose_shape`); the process was kept, and ``coupling_shape`` is among the draws, where it
+            exceeds ``log 3`` (:data:`SHAPE_MIN_LOG_FACTOR`). ``None``: the linear map was asked for.
     """
 
     sampler: SamplerReport
@@ -645,6 +680,7 @@ class JointPosterior(NamedTuple):
     predictive_check: dict
     modes: rivals.ModeSearch | None = None
     spot_log_bayes_factor: float | None = None
+    shape_log_bayes_factor: float | None = None
 
     @property
     def alternatives(self) -> tuple:
@@ -794,7 +830,9 @@ def fit_joint(
             float rounding (``docs/runtime.md``).
         num_warmup, num_samples, num_chains: NUTS settings (``num_samples`` draws are
             also taken from the SVI posterior).
-        prior: a :class:`JointPrior`.
+        prior: a :class:`JointPrior`. A fixation's spot (``held_scale``) and, head pose only, a Gaussian-process
+            head–gaze map (``coupling_shape_scale``) are each kept only where the data favour them by a Bayes
+            factor over 3 (:func:`_choose_spot`, then :func:`_choose_shape`).
         start: the pipeline's answer to start from (default :func:`joint_start`). It is
             first moved to the mode of the model with independent frames, then to the
             mode of the model itself (BFGS; the wearers' eye offsets are kept), and
@@ -833,7 +871,8 @@ def fit_joint(
     # the eye's depth: no mode, so NUTS learns its mass matrix in the warm-up instead of the Laplace one.
     at_mode = not data.wearers
 
-    plain = prior._replace(held_scale=None)  # a fixation's spot is weighed after the pruning (_choose_spot)
+    # a fixation's spot and a GP head–gaze map are weighed after the pruning (_choose_shape, _choose_spot)
+    plain = prior._replace(held_scale=None, coupling_shape_scale=None)
 
     def refined(start):
         arrays = _arrays(data, start.concurrence_centres, dtype)
@@ -847,16 +886,21 @@ def fit_joint(
         start = start._replace(concurrence_centres=start.concurrence_centres[:, keep],
                                concurrence_support=start.concurrence_support[keep])
         arrays, unconstrained = refined(start)
-    search, scored, spot_factor = None, None, None
+    search, scored, spot_factor, shape_factor = None, None, None, None
     if at_mode:
         unconstrained, arrays, kept, scored = _prune_concurrences(unconstrained, arrays, plain, progress)
         start = start._replace(concurrence_centres=start.concurrence_centres[:, kept],
                                concurrence_support=start.concurrence_support[kept])
+    shape_scale, prior = prior.coupling_shape_scale, prior._replace(coupling_shape_scale=None)
     if prior.held_scale is not None and at_mode:
         prior, unconstrained, spot_factor = _choose_spot(unconstrained, arrays, prior)
         scored = scored if prior.held_scale is None else None
     else:  # wearers: their start is no mode, where the spot's factor would weigh the start's misfit
         prior = plain
+    if at_mode and shape_scale is not None and data.head_motion is not None:  # (head pose only has no wearers)
+        scored = _laplace_evidence(unconstrained, arrays, prior) if scored is None else scored
+        prior, unconstrained, shape_factor, scored = _choose_shape(
+            unconstrained, arrays, prior._replace(coupling_shape_scale=shape_scale), scored)
     K = start.num_concurrences
     if at_mode:
         search, inverse_hessian = _search_modes(unconstrained, arrays, prior, data.wearers, progress, scored)
@@ -897,7 +941,7 @@ def fit_joint(
     if result == RESULTS.successful and check["flagged"].any():
         result = RESULTS.misfit  # the sampler mixed, but in a mode that explains someone's gaze badly
     posterior = JointPosterior(sampler, result, method, data.people, data.fps, membership, mutual, flat,
-                               data.window, start, check, search, spot_factor)
+                               data.window, start, check, search, spot_factor, shape_factor)
     return throw_if_failed(posterior, result, "fit_joint") if throw else posterior
 
 

@@ -30,7 +30,7 @@ from jaxgaze.bias.looking import (candidate_frames, direction_to_gaze_angles, ga
 from jaxgaze.calibration import calibrate_cone
 from jaxgaze.concurrence import ConcurrenceOptions, find_concurrences_over_frames
 from jaxgaze.joint.data import JointData
-from jaxgaze.joint.model import JointPrior, ModelArrays, head_gaze_angles, marginal_log_likelihood
+from jaxgaze.joint.model import JointPrior, ModelArrays, head_gaze_angles, marginal_log_likelihood, people_head_angles
 from jaxgaze.rays import GazeRays
 from jaxgaze.results import name
 
@@ -135,7 +135,9 @@ def model_arrays(data: JointData, centres, dtype) -> ModelArrays:
     f = lambda a: jnp.asarray(a, dtype)  # noqa: E731
     return ModelArrays(f(data.eye_positions), f(data.R_world_from_head), f(data.gaze_angles),
                        jnp.asarray(data.present), f(data.speaking), f(data.measurement_scale),
-                       jnp.asarray(data.window, jnp.int32), f(directions_to_people(data)),
+                       jnp.asarray(data.window, jnp.int32),
+                       f(directions_to_people(data)) if data.head_motion is None else
+                       people_head_angles(f(data.eye_positions), f(data.R_world_from_head)),
                        f(np.zeros((T, P, 0)) if data.head_motion is None else data.head_motion), f(centres),
                        f(data.calibration_points), jnp.asarray(data.calibration_mask),
                        jnp.asarray(data.wearers, jnp.int32).reshape(-1))

@@ -82,7 +82,7 @@ from jaxgaze.calibration.posterior import calibration_log_likelihood
 from jaxgaze.cone import cone_direction_log_density
 from jaxgaze.geometry import unit, wrap_angle
 
-__all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "head_gaze_angles", "head_log_jacobian", "coupling_shape", "gaze_angles", "candidate_log_probabilities",
+__all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "head_gaze_angles", "head_log_jacobian", "coupling_shape", "people_head_angles", "gaze_angles", "candidate_log_probabilities",
            "marginal_log_likelihood", "target_marginals", "target_log_prior", "model_params", "concurrence_locations", "eye_positions"]
 
 #: The model's sites on the positive half-line and in (0, 1): numpyro samples them as logs and logits.
@@ -143,7 +143,9 @@ class JointPrior(NamedTuple):
             ``None``: every frame's residual is independent given its target.
         coupling_shape_scale: head pose only: the amplitude (radians, gaze units) of a Gaussian process
             added to the linear map from head to gaze, per person and axis (Yücel et al. 2013, Sec. V:
-            the head-to-gaze map as a GP; :func:`coupling_shape`). ``None``: the map is linear.
+            the head-to-gaze map as a GP; :func:`coupling_shape`). :func:`~jaxgaze.joint.fit_joint` keeps it where
+            its Bayes factor against the linear map exceeds 3 (``JointPosterior.shape_log_bayes_factor``).
+            ``None``: the map is linear.
     """
 
     bias_scale: float = 0.25
@@ -168,7 +170,8 @@ class ModelArrays(NamedTuple):
 
     ``to_people_head[t, i, j]`` is the unit direction from person ``i``'s eyes to
     person ``j``'s, in ``i``'s head frame (data: the people's positions are known;
-    with wearers of head-mounted cameras it is recomputed from the inferred eyes).
+    with wearers of head-mounted cameras it is recomputed from the inferred eyes); for head pose
+    only ``(T, P, P, 2)``, that direction's world azimuth and elevation minus the head's (:func:`people_head_angles`).
     ``wearer_index`` lists the wearers; for them ``eye_positions`` are camera centres.
     ``head_motion`` is ``(T, P, 5)`` for head pose only (the head's yaw and tilt from
     its mean direction, their rates per second and the frame rate where the previous
@@ -183,7 +186,7 @@ class ModelArrays(NamedTuple):
     speaking: Float[Array, "T P"]
     measurement_scale: Float[Array, "T P"]
     window: Int[Array, " T"]
-    to_people_head: Float[Array, "T P P 3"]
+    to_people_head: Float[Array, "T P P _"]
     head_motion: Float[Array, "T P _"]
     location_centres: Float[Array, "W K 3"]
     calibration_points: Float[Array, "P M 3"]
@@ -320,8 +323,8 @@ def _parts(params: dict, arrays: ModelArrays, prior: JointPrior):
     people_logit = jnp.where(others, params["alpha_person"] + params["speaker_effect"] * speaking[:, None, :], -jnp.inf)
     locations = params["locations"]
     if arrays.head_motion.shape[-1]:
-        return (people_logit, others) + _head_only_terms(gaze + params["bias"], eyes, R, locations, window, width,
-                                                         arrays.head_motion, prior)
+        return (people_logit, others) + _head_only_terms(gaze + params["bias"], to_people_head, eyes, R, locations,
+                                                         window, width, arrays.head_motion, prior)
     directions_head = gaze_angles_to_direction(gaze + params["bias"])  # (T, P, 3)
     people_lik = cone_direction_log_density(jnp.einsum("tik,tijk->tij", directions_head, to_people_head), width)
     directions = head_to_world(directions_head, R)  # (T, P, 3), world frame
@@ -337,12 +340,27 @@ def _parts(params: dict, arrays: ModelArrays, prior: JointPrior):
     return people_logit, others, people_lik, slot_lik, elsewhere, directions, width[..., 0], residuals
 
 
+def _from_head(direction: Float[Array, "... 3"], head: Float[Array, "... 2"]) -> Float[Array, "... 2"]:
+    """A direction's azimuth and elevation minus the head's, the azimuth wrapped: angles on the plane of world angles."""
+    angles = direction_to_gaze_angles(direction) - head
+    return jnp.stack([wrap_angle(angles[..., 0]), angles[..., 1]], axis=-1)
+
+
+def people_head_angles(eye_positions: Float[Array, "T P 3"], R_world_from_head: Float[Array, "T P 3 3"]
+                       ) -> Float[Array, "T P P 2"]:
+    """``[t, i, j]``: the azimuth and elevation of person ``j``'s eyes seen from ``i``'s, minus those of ``i``'s head
+    (head pose only: what :class:`ModelArrays` holds as ``to_people_head``; data, so computed once, not in every
+    evaluation of the model, where they took 40% of the gradient's time, 60 s × 6 people)."""
+    head = direction_to_gaze_angles(R_world_from_head[..., :, 0])  # (T, P, 2)
+    return _from_head(unit(eye_positions[:, None, :, :] - eye_positions[:, :, None, :]), head[:, :, None])
+
+
 def _angle_log_density(residual, width):
     """``log N(r; 0, w² I)`` of a 2-D angle residual (yaw, tilt), not wrapped: a density on the plane of angles."""
     return -0.5 * jnp.sum(jnp.square(residual), axis=-1) / jnp.square(width) - jnp.log(2.0 * math.pi * jnp.square(width))
 
 
-def _head_only_terms(gaze, eyes, R, locations, window, width, head_motion, prior: JointPrior):
+def _head_only_terms(gaze, people_angles, eyes, R, locations, window, width, head_motion, prior: JointPrior):
     """The likelihoods of head pose only, on the plane of world angles (azimuth about the world's +z, elevation).
 
     ``gaze`` ``(T, P, 2)`` is ``g + b``, the gaze's azimuth and elevation minus the head's,
@@ -352,22 +370,18 @@ def _head_only_terms(gaze, eyes, R, locations, window, width, head_motion, prior
     minus the head's (the azimuth wrapped, the residual not): the coupling turns the head by
     a share of the line of sight's azimuth and elevation, so the head's roll, or its pitch,
     must not mix them, as the angles of the target in the head's own frame would.
-    Returns the people's, the concurrences' and elsewhere's log likelihoods, the world
+    ``people_angles`` are the people's angles so, ``(T, gazer, target, 2)`` (data:
+    :func:`people_head_angles`). Returns the people's, the concurrences' and elsewhere's log likelihoods, the world
     gaze angles from the head's mean direction ``(T, P, 2)`` that a held glance elsewhere is scored by,
     the widths, and the residuals ``(T, P, P + K, 2)`` from the people and concurrences.
     """
     T, P = gaze.shape[:2]
-    head = direction_to_gaze_angles(R[..., :, 0])  # (T, P, 2): the head's azimuth and elevation, world
-
-    def from_head(direction, head):  # a target's angles minus the head's, on the plane of world angles
-        angles = direction_to_gaze_angles(direction) - head
-        return jnp.stack([wrap_angle(angles[..., 0]), angles[..., 1]], axis=-1)
-
-    residuals = [gaze[:, :, None] - from_head(unit(eyes[:, None, :, :] - eyes[:, :, None, :]), head[:, :, None])]
+    residuals = [gaze[:, :, None] - people_angles]
     people_lik = _angle_log_density(residuals[0], width)  # (T, gazer, target)
     if locations.shape[1]:
-        residuals.append(gaze[:, :, None] - from_head(unit(locations[window][:, None] - eyes[:, :, None]),
-                                                      head[:, :, None]))  # (T, P, K, 2)
+        head = direction_to_gaze_angles(R[..., :, 0])  # (T, P, 2): the head's azimuth and elevation, world
+        residuals.append(gaze[:, :, None] - _from_head(unit(locations[window][:, None] - eyes[:, :, None]),
+                                                       head[:, :, None]))  # (T, P, K, 2)
         slot_lik = _angle_log_density(residuals[-1], width)
     else:
         slot_lik = jnp.zeros((T, P, 0), gaze.dtype)

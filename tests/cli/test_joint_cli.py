@@ -16,6 +16,7 @@ import csv
 import io
 import math
 import os
+import types
 
 import arviz as az
 import jax
@@ -25,7 +26,9 @@ from tests.cli.helpers import assert_failed, run_main
 
 import jaxgaze.joint
 from jaxgaze.cli import main
+from jaxgaze.cli._joint_summary import summary
 from jaxgaze.io.gaze import GAZE_COLUMNS
+from jaxgaze.io.joint import write_joint_netcdf
 from jaxgaze.io.tools.openface import OPENFACE_COLUMNS
 from jaxgaze.io.text import atomic_path
 from jaxgaze.joint.rivals import Alternative, ModeSearch
@@ -168,6 +171,29 @@ def test_joint_says_whether_the_fit_kept_a_fixation_spot(fitted, scene_files, tm
     status, stdout, _ = run_main(capsys, ["joint", *scene_files["gaze"], "--out", tmp_path / "j.nc"])
     assert "held through a fixation: none (the data favour a fixation's spot by a factor of 0.082, under the 3" in stdout
     assert az.from_netcdf(tmp_path / "j.nc").posterior.attrs["spot_log_bayes_factor"] == -2.5
+    assert "shape_log_bayes_factor" not in az.from_netcdf(tmp_path / "j.nc").posterior.attrs  # the linear map asked for
+
+
+@pytest.mark.parametrize("kept", [True, False])
+def test_joint_says_which_head_gaze_map_the_fit_kept(fitted, tmp_path, kept):
+    """Head pose only with a Gaussian-process map asked for: the summary names the map kept and the Bayes factor,
+    and the netCDF holds the factor."""
+    post = fitted["posterior"]
+    S, P = post.samples["bias"].shape[:2]
+    kappa = np.full((S, P, 2), 0.6)
+    samples = {**post.samples, "coupling": kappa, "head_lag": np.full((S, P), 0.2)}
+    if kept:
+        samples["coupling_shape"] = np.zeros((S, P, 2, 12))
+    shaped = post._replace(samples=samples, shape_log_bayes_factor=math.log(40.0) if kept else -3.0)
+    data = types.SimpleNamespace(num_frames=post.membership.shape[0], fps=FPS, has_speech=True)
+    lines = summary(shaped, data, ["j.nc"]).splitlines()
+    line = next(x for x in lines if x.startswith("head-gaze map"))
+    assert line == (f"head-gaze map: {'a Gaussian process on the linear map' if kept else 'linear'} (the data favour "
+                    f"the Gaussian process by a factor of {'40' if kept else '0.05'}; 3 keeps it)")
+    assert lines.index(line) + 1 == next(i for i, x in enumerate(lines) if x.startswith("head-gaze coupling"))
+    write_joint_netcdf(tmp_path / "j.nc", shaped)
+    assert az.from_netcdf(tmp_path / "j.nc").posterior.attrs["shape_log_bayes_factor"] == pytest.approx(
+        math.log(40.0) if kept else -3.0, abs=1e-6)
 
 
 @pytest.mark.parametrize("result", ["successful", "not_mixed"])
@@ -261,13 +287,16 @@ def _bad_cases(f):
         "--speaker-map speaker": (gaze, ["--speech", f["rttm"], "--speaker-map", "cat=spk9"], "'spk9'"),
         "--speaker-map syntax": (gaze, ["--speech", f["rttm"], "--speaker-map", "cat"], "NAME=SPEAKER"),
         "--speaker-map without --speech": (gaze, ["--speaker-map", "cat=spk3"], "need --speech"),
+        "--head-gaze-gp without --head-only": (gaze, ["--head-gaze-gp", "0.2"], "it needs --head-only"),
+        "--head-gaze-gp in degrees": (gaze, ["--head-only", "--head-gaze-gp", "15"], "radians"),
     }
 
 
 BAD = ["missing gaze file", "malformed gaze CSV", "--people count", "reserved name", "duplicate name", "bad --draws",
        "too few --draws", "bad --fps", "bad --window-s", "--fps against timestamps", "one person", "millimetres",
        "several OpenFace", "OpenFace and CSV", "missing speech", "--speaker-map person", "--speaker-map speaker",
-       "--speaker-map syntax", "--speaker-map without --speech"]
+       "--speaker-map syntax", "--speaker-map without --speech", "--head-gaze-gp without --head-only",
+       "--head-gaze-gp in degrees"]
 
 
 @pytest.mark.parametrize("case", BAD)
@@ -278,6 +307,22 @@ def test_joint_bad_input(scene_files, tmp_path, capsys, monkeypatch, case):
                                                "--per-frame", tmp_path / "f.csv"])
     assert_failed(status, stdout, stderr, words)
     assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("extra, scale", [([], None), (["--head-gaze-gp", "0.2"], 0.2)])
+def test_joint_head_gaze_gp_reaches_the_prior(scene_files, tmp_path, capsys, monkeypatch, extra, scale):
+    """``--head-only --head-gaze-gp 0.2`` fits with ``JointPrior(coupling_shape_scale=0.2)``, the linear map without."""
+    seen = []
+
+    def stop(data, **kwargs):
+        seen.append((data.head_motion is not None, kwargs["prior"].coupling_shape_scale))
+        raise ValueError("reached fit_joint")
+
+    monkeypatch.setattr(jaxgaze.joint, "fit_joint", stop)
+    status, stdout, stderr = run_main(capsys, ["joint", *scene_files["gaze"], "--head-only", *extra,
+                                               "--out", tmp_path / "j.nc"])
+    assert_failed(status, stdout, stderr, "reached fit_joint")
+    assert seen == [(True, scale)] and os.listdir(tmp_path) == []
 
 
 def test_joint_bad_outputs(scene_files, tmp_path, capsys):

@@ -21,11 +21,12 @@ from jaxgaze.io.joint import read_joint_gaze
 from jaxgaze.io.tools.openface import OpenFaceFileError, write_openface_faces
 from jaxgaze.joint import JointPrior, joint_data, joint_start
 from jaxgaze.joint import rivals
-from jaxgaze.joint.infer import _arrays, _long_run_variance, _refine_start, _start_values, _unconstrained, _widen
+from jaxgaze.joint.infer import (SHAPE_MIN_LOG_FACTOR, _arrays, _choose_shape, _laplace_evidence, _long_run_variance,
+                                 _refine_start, _start_values, _unconstrained, _widen)
 from jaxgaze.joint.init import COUPLING_GRID, coupling_profile
 from jaxgaze.joint.model import (COUPLING_SHAPE_BASIS, COUPLING_SHAPE_HALF_WIDTH, frame_log_likelihood,
                                  head_gaze_angles, marginal_log_likelihood)
-from jaxgaze.simulate import simulate_conversation
+from jaxgaze.simulate import ConversationConfig, simulate_conversation
 
 
 def _tiny(seed=0, T=3, P=3, K=1, gap=None):
@@ -285,6 +286,28 @@ def test_the_rival_search_reads_couplings_and_lags_in_their_own_units():
     back = rivals.constrained(_unconstrained(values))
     for site, value in values.items():
         np.testing.assert_allclose(np.asarray(back[site]), value, rtol=1e-6, err_msg=site)
+
+
+@pytest.mark.parametrize("limit_deg, kept", [(8.0, True), (0.0, False)])
+def test_a_gaussian_process_map_is_kept_where_heads_saturate(limit_deg, kept):
+    """``_choose_shape``: heads whose turn saturates at 8° favour the Gaussian-process map by a Bayes factor over 3
+    (``e^9.6``), heads that turn in proportion the linear map (``e^−42``). The tracker's errors are independent
+    from frame to frame here (no drift, no sway), so the model without a fixation's spot is the right one."""
+    config = ConversationConfig(head_turn_limit_deg=limit_deg, tracker_drift_deg=0.0, head_sway_deg=0.0)
+    scene = simulate_conversation(jax.random.key(3), num_people=4, duration_s=30.0, config=config)
+    data = joint_data(scene.eye_positions, scene.R_world_from_head, None, present=scene.present,
+                      speaking=scene.speaking, fps=scene.fps)
+    start = joint_start(data, key=jax.random.key(1))
+    start = start._replace(concurrence_centres=start.concurrence_centres[:, :0],  # both scenes in one program
+                           concurrence_support=start.concurrence_support[:0])
+    linear = JointPrior(held_scale=None)
+    arrays = _arrays(data, start.concurrence_centres, jnp.float32)
+    values = {k: jnp.asarray(v, jnp.float32) for k, v in _unconstrained(_start_values(start, linear, 4)).items()}
+    mode = _refine_start(values, arrays, linear, True)
+    chosen, chosen_mode, log_factor, _ = _choose_shape(mode, arrays, linear._replace(coupling_shape_scale=0.2),
+                                                       _laplace_evidence(mode, arrays, linear))
+    assert (log_factor > SHAPE_MIN_LOG_FACTOR) == kept and abs(log_factor) > 5.0, log_factor
+    assert (chosen.coupling_shape_scale == 0.2) == kept and ("coupling_shape" in chosen_mode) == kept
 
 
 def test_head_only_input_errors():
