@@ -77,6 +77,7 @@ def evaluate_scene(key, people, duration_s, warmup, draws, compare, prior=JointP
     b_lo, b_hi = np.quantile(offsets, [0.05, 0.95], axis=0)
     result = name(post.result)
     row = {"people": P, "result": result, "seconds": seconds, "spot_log_bayes_factor": post.spot_log_bayes_factor,
+           "shape_log_bayes_factor": post.shape_log_bayes_factor, "shape": "coupling_shape" in post.samples,
            "spot": "held_cone_share" in post.samples,
            "right": int(np.sum(post.map_targets()[at_person] == target[at_person])), "at_person": int(at_person.sum()),
            "baseline_right": int(np.sum(_nearest_to_head_ray(data)[at_person] == target[at_person])),
@@ -159,7 +160,9 @@ def main() -> None:
         r = done[str(i)]
         print(f"scene {i}: {r['people']} people, {r['result']}, right {r['right'] / max(r['at_person'], 1):.3f} "
               f"(baseline {r['baseline_right'] / max(r['at_person'], 1):.3f}), max |kappa error| "
-              f"{max(abs(e) for e in r['kappa_error']):.3f} ({r['seconds']:.0f} s)", flush=True)
+              f"{max(abs(e) for e in r['kappa_error']):.3f} ({r['seconds']:.0f} s)"
+              + (f", GP map {'kept' if r['shape'] else 'dropped'} (log factor {r['shape_log_bayes_factor']:.1f})"
+                 if r["shape_log_bayes_factor"] is not None else ""), flush=True)
         write_cache(args.cache[-1] if args.cache else None, done)
         jax.clear_caches()
     if done:
