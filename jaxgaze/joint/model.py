@@ -336,7 +336,8 @@ def _parts(params: dict, arrays: ModelArrays, prior: JointPrior):
         slot_lik = jnp.zeros((T, P, 0), directions_head.dtype)
     forward = directions_head[..., 0]  # cosine to the head's +x
     elsewhere = cone_direction_log_density(forward, jnp.asarray(prior.elsewhere_spread, forward.dtype))
-    residuals = directions[:, :, None] - jnp.concatenate(targets, axis=2)  # (T, P, P + K, 3), world
+    targets = jnp.concatenate(targets, axis=2)  # (T, P, P + K, 3), world
+    residuals = tuple(directions[:, :, None, d] - targets[..., d] for d in range(3))
     return people_logit, others, people_lik, slot_lik, elsewhere, directions, width[..., 0], residuals
 
 
@@ -357,8 +358,10 @@ def people_head_angles(eye_positions: Float[Array, "T P 3"], R_world_from_head: 
 
 
 def _angle_log_density(residual, width):
-    """``log N(r; 0, w² I)`` of a 2-D angle residual (yaw, tilt), not wrapped: a density on the plane of angles."""
-    return -0.5 * jnp.sum(jnp.square(residual), axis=-1) / jnp.square(width) - jnp.log(2.0 * math.pi * jnp.square(width))
+    """``log N(r; 0, w² I)`` of a 2-D angle residual (yaw, tilt), not wrapped: a density on the plane of angles.
+    ``residual`` is ``(…, 2)`` or its two components apart (a pair of arrays, :func:`_head_only_terms`)."""
+    square = jnp.sum(jnp.square(residual), axis=-1) if isinstance(residual, jax.Array) else sum(map(jnp.square, residual))
+    return -0.5 * square / jnp.square(width) - jnp.log(2.0 * math.pi * jnp.square(width))
 
 
 def _head_only_terms(gaze, people_angles, eyes, R, locations, window, width, head_motion, prior: JointPrior):
@@ -377,17 +380,21 @@ def _head_only_terms(gaze, people_angles, eyes, R, locations, window, width, hea
     the widths, and the residuals ``(T, P, P + K, 2)`` from the people and concurrences.
     """
     T, P = gaze.shape[:2]
-    residuals = [gaze[:, :, None] - people_angles]
+    # components apart, (yaw, tilt) each (T, P, C): the gradient's sums over the candidates are then over the last
+    # axis (XLA:CPU summed over the middle axis of (T, P, C, 2) at a fifth of a gradient's time)
+    apart = lambda a: (a[..., 0], a[..., 1])  # noqa: E731
+    residuals = [tuple(g[:, :, None] - a for g, a in zip(apart(gaze), apart(people_angles)))]
     people_lik = _angle_log_density(residuals[0], width)  # (T, gazer, target)
     if locations.shape[1]:
         head = direction_to_gaze_angles(R[..., :, 0])  # (T, P, 2): the head's azimuth and elevation, world
-        residuals.append(gaze[:, :, None] - _from_head(unit(locations[window][:, None] - eyes[:, :, None]),
-                                                       head[:, :, None]))  # (T, P, K, 2)
+        angles = _from_head(unit(locations[window][:, None] - eyes[:, :, None]), head[:, :, None])  # (T, P, K, 2)
+        residuals.append(tuple(g[:, :, None] - a for g, a in zip(apart(gaze), apart(angles))))
         slot_lik = _angle_log_density(residuals[-1], width)
     else:
         slot_lik = jnp.zeros((T, P, 0), gaze.dtype)
     elsewhere = _angle_log_density(gaze, jnp.asarray(prior.elsewhere_spread, gaze.dtype))
-    return people_lik, slot_lik, elsewhere, head_motion[..., :2] + gaze, width[..., 0], jnp.concatenate(residuals, 2)
+    residuals = tuple(jnp.concatenate(parts, axis=2) for parts in zip(*residuals))
+    return people_lik, slot_lik, elsewhere, head_motion[..., :2] + gaze, width[..., 0], residuals
 
 
 def _log_normaliser(people_logit, num_slots: int, alpha_object):
@@ -483,26 +490,79 @@ def _forward(log_prior, log_lik, held, observed, stay, shift=None, per_frame=Fal
     log_lik = jnp.where(observed[..., None], log_lik, 0.0)
     if held.shape[-1] == 1:  # elsewhere's term only
         held = jnp.zeros_like(log_lik).at[..., -1:].set(held)
-    new = log_prior + log_lik
-    top = jax.lax.stop_gradient(jnp.max(new, axis=-1, keepdims=True))
+    top = jax.lax.stop_gradient(jnp.max(log_prior + log_lik, axis=-1, keepdims=True))
     first = (jnp.arange(log_prior.shape[1]) == 0)[None, :, None, None]
-    new = jnp.exp(new - top) * jnp.where(first, 1.0, 1.0 - stay)
-    kept = jnp.where(first, 0.0, stay * jnp.exp(jnp.minimum(log_lik + held - top, _HELD_CAP)))
+
+    def scaled(log_prior, log_lik, held, top, first):
+        new = jnp.exp(log_prior + log_lik - top) * jnp.where(first, 1.0, 1.0 - stay)
+        return new, jnp.where(first, 0.0, stay * jnp.exp(jnp.minimum(log_lik + held - top, _HELD_CAP)))
+
+    new, kept = _on_rows(scaled, log_prior, log_lik, held, top, first)
+
+    swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
+    if per_frame:  # log p(g_t | g_{<t}) of each frame of a block, (B, L, P)
+        return swap(jnp.log(_sticky_recursion(swap(new), swap(kept))[1])) + top[..., 0]
+    return jnp.sum(_log_normalisers(swap(new), swap(kept)), axis=0) + jnp.sum(top[..., 0], axis=1)
+
+
+def _sticky_recursion(new, kept):
+    """The forward recursion ``α_t ∝ kept_t ⊙ α_{t−1} + new_t`` on time-major ``(L, B, P, C)`` terms: every ``α_t``
+    (normalised) and its normaliser ``n_t`` ``(L, B, P)``, floored at :data:`_NORM_FLOOR`."""
 
     def step(alpha, x):
         new_t, kept_t = x
         joint = kept_t * alpha + new_t
         norm = jnp.maximum(jnp.sum(joint, axis=-1, keepdims=True), _NORM_FLOOR)
-        return joint / norm, norm[..., 0]
+        return joint / norm, (joint / norm, norm[..., 0])
 
-    swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
-    _, norms = jax.lax.scan(step, jnp.zeros_like(new[:, 0]), (swap(new), swap(kept)))
-    if per_frame:  # log p(g_t | g_{<t}) of each frame of a block, (B, L, P)
-        return swap(jnp.log(norms)) + top[..., 0]
-    return jnp.sum(jnp.log(norms), axis=0) + jnp.sum(top[..., 0], axis=1)
+    return jax.lax.scan(step, jnp.zeros_like(new[0]), (new, kept))[1]
 
 
-def _held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_variance):
+@jax.custom_vjp
+def _log_normalisers(new, kept):
+    """``log n_t`` of :func:`_sticky_recursion`, ``(L, B, P)``, differentiated by the backward recursion written out
+    (:func:`_log_normalisers_bwd`) rather than by JAX's transpose of the scan."""
+    return jnp.log(_sticky_recursion(new, kept)[1])
+
+
+def _log_normalisers_fwd(new, kept):
+    alphas, norms = _sticky_recursion(new, kept)
+    return jnp.log(norms), (alphas, norms, kept)
+
+
+def _log_normalisers_bwd(residuals, bar):
+    """The backward pass of the forward algorithm (Rabiner 1989, eq. 24–25, in its adjoint form): with
+    ``G_t = ∂L/∂α_t`` and ``m_t`` 1 where the normaliser is above its floor,
+    ``∂L/∂joint_t = (G_t + m_t (ḡ_t − G_t·α_t)) / n_t``, ``G_{t−1} = kept_t ⊙ ∂L/∂joint_t``; then
+    ``∂L/∂new_t = ∂L/∂joint_t`` and ``∂L/∂kept_t = ∂L/∂joint_t ⊙ α_{t−1}``."""
+    alphas, norms, kept = residuals
+    unfloored = (norms > _NORM_FLOOR).astype(norms.dtype)
+
+    def step(G, x):
+        kept_t, alpha_t, bar_t, unfloored_t, norm_t = x
+        d_joint = (G + unfloored_t[..., None] * (bar_t[..., None] - jnp.sum(G * alpha_t, axis=-1, keepdims=True))
+                   ) / norm_t[..., None]
+        return kept_t * d_joint, d_joint
+
+    _, d_joint = jax.lax.scan(step, jnp.zeros_like(alphas[0]), (kept, alphas, bar, unfloored, norms), reverse=True)
+    before = jnp.concatenate([jnp.zeros_like(alphas[:1]), alphas[:-1]], axis=0)
+    return d_joint, d_joint * before
+
+
+_log_normalisers.defvjp(_log_normalisers_fwd, _log_normalisers_bwd)
+
+
+def _on_rows(fn, *arrays):
+    """``fn`` of ``arrays`` broadcast to their common shape ``(B, L, …)``, run on rows ``(B, L, −1)`` and reshaped
+    back: elementwise work only. XLA:CPU ran a fusion of a log, an exp or a division over ``(…, P, C)``, whose last two
+    axes are short, 5–7 times slower than over the same numbers in rows (225 against 41 µs for a log, an exp and a
+    reciprocal of ``(640, 6, 8)``; 0.35 of the spot's 1.7 ms per gradient, ``benchmarks/RESULTS.md``)."""
+    shape = jnp.broadcast_shapes(*(a.shape for a in arrays))
+    out = fn(*(jnp.broadcast_to(a, shape).reshape(shape[:2] + (-1,)) for a in arrays))
+    return jax.tree.map(lambda a: a.reshape(shape), out)
+
+
+def _held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_variance, plain_scans=False):
     """``(B, L, P, P + K)``: log p(g_t | person or concurrence j held from t−1) − log p(g_t | j new) (a fixation's spot).
 
     Through a fixation the eyes rest on one spot of the target: the residual ``r_t = d_t − u_t(j)``
@@ -520,33 +580,76 @@ def _held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_varian
     where ``t`` is not observed, and for ``c = 0``. ``spot_variance`` is ``c h²`` per person.
     """
     log_prior = jnp.maximum(log_prior, _LOG_FLOOR)
-    log_q = jax.nn.log_softmax(log_prior + jnp.maximum(log_lik, _LOG_FLOOR), axis=-1)[..., :-1]
-    log_q = jnp.where(observed[..., None], log_q, 0.0)  # an unobserved frame: the fixation may go on through it
+    score = log_prior + jnp.maximum(log_lik, _LOG_FLOOR)
+    top = jax.lax.stop_gradient(jnp.max(score, axis=-1, keepdims=True))
+    log_norm = top + jnp.log(jnp.sum(_on_rows(lambda s, m: jnp.exp(s - m), score, top), axis=-1, keepdims=True))
+    earlier = lambda a, fill: jnp.concatenate([jnp.full_like(a[:, :1], fill), a[:, :-1]], axis=1)  # noqa: E731
+
+    def weights(score, log_norm, observed, log_prior):  # of frame t − 1, t − 1, t − 1, t
+        log_q = jnp.where(observed, score - log_norm, 0.0)  # an unobserved frame: the fixation may go on through it
+        return jax.nn.sigmoid(jnp.log(stay) + log_q - jnp.log1p(-stay) - log_prior)
+
+    # P(z_{t−1} = j, kept at t | z_t = j); the block's first frame has no t − 1 (log q = -10⁴)
+    decay = _on_rows(weights, earlier(score[..., :-1], 0.0), earlier(log_norm, -_LOG_FLOOR),
+                     earlier(observed, True)[..., None], log_prior[..., :-1])
     w2 = jnp.square(width)  # (B, L, P)
     e = w2 - spot_variance
     inv_e = jnp.where(observed, 1.0 / e, 0.0)
-    r = jnp.where(observed[..., None, None], residuals, 0.0)  # (B, L, P, C', D)
-    kept = jnp.log(stay) + jnp.concatenate([jnp.full_like(log_q[:, :1], _LOG_FLOOR), log_q[:, :-1]], axis=1)
-    decay = jax.nn.sigmoid(kept - jnp.log1p(-stay) - log_prior[..., :-1])  # P(z_{t−1} = j, kept at t | z_t = j)
+    r = tuple(jnp.where(observed[..., None], d, 0.0) for d in residuals)  # D components, each (B, L, P, C')
 
-    def step(total, x):  # total (B, P, C', 1 + D): A and S of the frames before t
-        x_t, decay_t = x
-        return x_t + decay_t[..., None] * total, total
+    inv_e = inv_e[..., None]
+    weighed = jnp.stack([jnp.broadcast_to(inv_e, decay.shape)] + [inv_e * d for d in r])  # (1/e, r/e): (1 + D, B, L, …)
+    recurrence = _discounted_sums if plain_scans else _discounted_sums_adjoint
+    to_time, from_time = (lambda x: jnp.moveaxis(x, 2, 0)), (lambda x: jnp.moveaxis(x, 0, 2))  # noqa: E731
+    totals = from_time(recurrence(to_time(weighed), to_time(decay[None])))  # A and S of the frames before t
+    def density(spot, e, w2, observed, A, *r_and_S):
+        r, S = r_and_S[:len(r_and_S) // 2], r_and_S[len(r_and_S) // 2:]
+        V = spot / (1.0 + spot * A)
+        spread = V + e  # (B, L, P, C')
+        miss = sum(jnp.square(d - V * s) for d, s in zip(r, S))
+        held_density = -0.5 * miss / spread - jnp.log(spread)
+        new_density = -0.5 * sum(map(jnp.square, r)) / w2 - jnp.log(w2)
+        # Both floored as _forward floors the emission: with only the new glance's density unfloored, a residual far
+        # outside a narrowing cone raised the held frame without bound (the potential reached -1e13 as h -> 0).
+        held = jnp.maximum(held_density, _LOG_FLOOR) - jnp.maximum(new_density, _LOG_FLOOR)
+        return jnp.where(observed, held, 0.0)
 
-    swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
-    weighed = inv_e[..., None, None] * jnp.concatenate([jnp.ones_like(r[..., :1]), r], axis=-1)  # (1/e, r/e)
-    _, totals = jax.lax.scan(step, jnp.zeros_like(weighed[:, 0]), (swap(weighed), swap(decay)))
-    totals = swap(totals)
-    A, S = totals[..., 0], totals[..., 1:]
-    V = spot_variance[:, None] / (1.0 + spot_variance[:, None] * A)
-    spread = V + e[..., None]  # (B, L, P, C')
-    miss = jnp.sum(jnp.square(r - V[..., None] * S), axis=-1)
-    held_density = -0.5 * miss / spread - jnp.log(spread)
-    new_density = -0.5 * jnp.sum(jnp.square(r), axis=-1) / w2[..., None] - jnp.log(w2)[..., None]
-    # Both floored as _forward floors the emission: with only the new glance's density unfloored, a residual far
-    # outside a narrowing cone raised the held frame without bound (the potential reached -1e13 as h -> 0).
-    held = jnp.maximum(held_density, _LOG_FLOOR) - jnp.maximum(new_density, _LOG_FLOOR)
-    return jnp.where(observed[..., None], held, 0.0)
+    return _on_rows(density, spot_variance[:, None], e[..., None], w2[..., None], observed[..., None], totals[0],
+                    *r, *totals[1:])
+
+
+def _discounted_sums(x, decay):
+    """``y_t = Σ_{s<t} x_s Π_{s<u<t} decay_u`` on time-major arrays: the linear recurrence
+    ``y_0 = 0``, ``y_{t+1} = x_t + decay_t y_t`` (``decay`` broadcast against ``x``)."""
+
+    def step(total, x_t):
+        return x_t[0] + x_t[1] * total, total
+
+    return jax.lax.scan(step, jnp.zeros_like(x[0]), (x, decay))[1]
+
+
+@jax.custom_vjp
+def _discounted_sums_adjoint(x, decay):
+    """:func:`_discounted_sums`, differentiated by its own recurrence run backwards: the adjoint of
+    ``y_{t+1} = x_t + decay_t y_t`` is ``μ_t = ȳ_t + decay_t μ_{t+1}``, so ``∂L/∂x_t = μ_{t+1}`` and
+    ``∂L/∂decay_t = μ_{t+1} y_t`` (summed where ``decay`` broadcasts)."""
+    return _discounted_sums(x, decay)
+
+
+def _discounted_sums_fwd(x, decay):
+    totals = _discounted_sums(x, decay)
+    return totals, (totals, decay)
+
+
+def _discounted_sums_bwd(residuals, bar):
+    totals, decay = residuals
+    later = _discounted_sums(bar[::-1], decay[::-1])[::-1]  # μ_{t+1}
+    d_decay = later * totals
+    summed = tuple(i for i, n in enumerate(decay.shape) if n == 1 and totals.shape[i] != 1)
+    return later, jnp.sum(d_decay, axis=summed, keepdims=True)
+
+
+_discounted_sums_adjoint.defvjp(_discounted_sums_fwd, _discounted_sums_bwd)
 
 
 def _chain_log_likelihood(blocked_terms, observed, stay, shift=None, spot_variance=None, per_frame=False):
@@ -555,15 +658,15 @@ def _chain_log_likelihood(blocked_terms, observed, stay, shift=None, spot_varian
     log_prior, log_lik, directions, width, residuals = blocked_terms
     held = _held_elsewhere(log_lik, directions, width, observed)[..., None]
     if spot_variance is not None:
-        held = jnp.concatenate([_held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_variance),
-                                held], axis=-1)
+        held = jnp.concatenate([_held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_variance,
+                                           per_frame), held], axis=-1)
     return _forward(log_prior, log_lik, held, observed, stay, shift, per_frame)
 
 
 def _blocked_log_likelihood(terms, present, stay, frames, shift=None, spot_variance=None):
     """The forward pass over every block of ``(T, …)`` candidate terms (gathered into ``(B, L, …)``)."""
     index, valid = frames
-    return _chain_log_likelihood(tuple(a[index] for a in terms), present[index] & valid[..., None], stay,
+    return _chain_log_likelihood(jax.tree.map(lambda a: a[index], terms), present[index] & valid[..., None], stay,
                                  None if shift is None else shift[index], spot_variance)
 
 
@@ -611,7 +714,7 @@ def frame_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior = 
     to frame the model's own curvature does not see (:func:`~jaxgaze.joint.infer.fit_joint`'s coupling intervals)."""
     T = arrays.present.shape[0]
     index, valid = _blocks(T)
-    terms = tuple(a[index] for a in _candidate_terms(params, arrays, prior))
+    terms = jax.tree.map(lambda a: a[index], _candidate_terms(params, arrays, prior))
     observed = arrays.present[index] & valid[..., None]
     per_frame = _chain_log_likelihood(terms, observed, params["stay"], spot_variance=_spot_variance(params),
                                       per_frame=True)
@@ -720,7 +823,7 @@ def joint_model(
     with numpyro.plate("blocks", index.shape[0], subsample_size=blocks_per_step) as blocks:
         index, valid = index[blocks], valid[blocks]
         local = ModelArrays(*(a[index.reshape(-1)] for a in arrays[:9]), *arrays[9:])  # (B·L, …), blocks in a row
-        terms = tuple(a.reshape(index.shape + a.shape[1:]) for a in _candidate_terms(params, local, prior))
+        terms = jax.tree.map(lambda a: a.reshape(index.shape + a.shape[1:]), _candidate_terms(params, local, prior))
         observed = local.present.reshape(index.shape + (P,)) & valid[..., None]
         log_lik = jnp.sum(_chain_log_likelihood(terms, observed, stay, spot_variance=_spot_variance(params)), axis=-1)
         if head_motion.shape[-1]:

@@ -17,6 +17,7 @@ from jaxgaze.geometry import head_pose_to_rotation
 from jaxgaze.joint import BLOCK_FRAMES, JointPrior, joint_data, target_marginals
 from jaxgaze.joint.model import candidate_log_probabilities, joint_model, marginal_log_likelihood
 from jaxgaze.joint.infer import _arrays
+from jaxgaze.joint import model
 from jaxgaze.joint.model import MAX_HELD_CONE_SHARE, _candidate_terms
 
 
@@ -291,6 +292,30 @@ def test_gradients_match_finite_differences(x64):
                         for k in range(flat.size)])
     np.testing.assert_allclose(np.asarray(g), numeric, rtol=1e-5, atol=1e-5)
 
+
+
+def test_the_written_out_adjoints_match_autodiff_of_the_scans(x64):
+    """The forward recursion and the spot's discounted sums are differentiated by their adjoints written out
+    (``model._log_normalisers``, ``model._discounted_sums_adjoint``): against JAX's transpose of the plain scans, in
+    float64, with a frame whose normaliser sits at its floor and a decay broadcast over the sums' components."""
+    rng = np.random.default_rng(7)
+    L, B, P, C = 9, 2, 3, 4
+    new, kept = (jnp.asarray(rng.random((L, B, P, C))).at[3, 0, 1].set(0.0) for _ in range(2))
+    bar = jnp.asarray(rng.normal(size=(L, B, P)))
+    plain = lambda n, k: jnp.sum(bar * jnp.log(model._sticky_recursion(n, k)[1]))  # noqa: E731
+    written = lambda n, k: jnp.sum(bar * model._log_normalisers(n, k))  # noqa: E731
+    assert float(jnp.min(model._sticky_recursion(new, kept)[1])) == model._NORM_FLOOR  # the floor is reached
+    np.testing.assert_allclose(written(new, kept), plain(new, kept), rtol=1e-12)
+    for ours, reference in zip(jax.grad(written, (0, 1))(new, kept), jax.grad(plain, (0, 1))(new, kept)):
+        np.testing.assert_allclose(ours, reference, rtol=1e-10, atol=1e-12)
+    x, decay = jnp.asarray(rng.normal(size=(L, 3, B, P, C))), jnp.asarray(rng.random((L, 1, B, P, C)))
+    cotangent = jnp.asarray(rng.normal(size=x.shape))
+    plain = lambda a, d: jnp.sum(cotangent * model._discounted_sums(a, d))  # noqa: E731
+    written = lambda a, d: jnp.sum(cotangent * model._discounted_sums_adjoint(a, d))  # noqa: E731
+    totals = model._discounted_sums(x, decay)
+    np.testing.assert_allclose(totals[2], x[1] + decay[1] * x[0], rtol=1e-12)  # y_2 = x_1 + d_1 x_0
+    for ours, reference in zip(jax.grad(written, (0, 1))(x, decay), jax.grad(plain, (0, 1))(x, decay)):
+        np.testing.assert_allclose(ours, reference, rtol=1e-10, atol=1e-12)
 
 def _valid():
     data, _, _ = _tiny(seed=4, T=3, P=3)
