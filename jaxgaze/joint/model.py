@@ -80,7 +80,7 @@ from numpyro.contrib.hsgp.laplacian import eigenfunctions
 from jaxgaze.bias.looking import direction_to_gaze_angles, gaze_angles_to_direction, head_to_world
 from jaxgaze.calibration.posterior import calibration_log_likelihood
 from jaxgaze.cone import cone_direction_log_density
-from jaxgaze.geometry import unit, wrap_angle
+from jaxgaze.geometry import direction_to_yaw_pitch, unit, wrap_angle
 
 __all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "head_gaze_angles", "head_log_jacobian", "coupling_shape", "people_head_angles", "gaze_angles", "candidate_log_probabilities",
            "marginal_log_likelihood", "target_marginals", "target_log_prior", "model_params", "concurrence_locations", "eye_positions"]
@@ -383,13 +383,26 @@ def _head_only_terms(gaze, people_angles, eyes, R, locations, window, width, hea
     # components apart, (yaw, tilt) each (T, P, C): the gradient's sums over the candidates are then over the last
     # axis (XLA:CPU summed over the middle axis of (T, P, C, 2) at a fifth of a gradient's time)
     apart = lambda a: (a[..., 0], a[..., 1])  # noqa: E731
-    residuals = [tuple(g[:, :, None] - a for g, a in zip(apart(gaze), apart(people_angles)))]
-    people_lik = _angle_log_density(residuals[0], width)  # (T, gazer, target)
+    gaze_yaw, gaze_tilt = (g[:, :, None] for g in apart(gaze))
+
+    def people(gaze_yaw, gaze_tilt, target_yaw, target_tilt, width):
+        residual = (gaze_yaw - target_yaw, gaze_tilt - target_tilt)
+        return residual + (_angle_log_density(residual, width),)
+
+    *residuals, people_lik = _on_rows(people, gaze_yaw, gaze_tilt, *apart(people_angles), width)  # (T, gazer, target)
+    residuals = [residuals]
     if locations.shape[1]:
         head = direction_to_gaze_angles(R[..., :, 0])  # (T, P, 2): the head's azimuth and elevation, world
-        angles = _from_head(unit(locations[window][:, None] - eyes[:, :, None]), head[:, :, None])  # (T, P, K, 2)
-        residuals.append(tuple(g[:, :, None] - a for g, a in zip(apart(gaze), apart(angles))))
-        slot_lik = _angle_log_density(residuals[-1], width)
+
+        def slots(gaze_yaw, gaze_tilt, x, y, z, head_yaw, head_tilt, width):
+            yaw, tilt = direction_to_yaw_pitch(jnp.stack([x, y, z], axis=-1))  # as _from_head, components apart
+            residual = (gaze_yaw - wrap_angle(yaw - head_yaw), gaze_tilt - (tilt - head_tilt))
+            return residual + (_angle_log_density(residual, width),)
+
+        toward = locations[window][:, None] - eyes[:, :, None]  # (T, P, K, 3)
+        *slot_residuals, slot_lik = _on_rows(slots, gaze_yaw, gaze_tilt, toward[..., 0], toward[..., 1],
+                                             toward[..., 2], *(h[:, :, None] for h in apart(head)), width)
+        residuals.append(slot_residuals)
     else:
         slot_lik = jnp.zeros((T, P, 0), gaze.dtype)
     elsewhere = _angle_log_density(gaze, jnp.asarray(prior.elsewhere_spread, gaze.dtype))
