@@ -513,7 +513,7 @@ def _forward(log_prior, log_lik, held, observed, stay, shift=None, per_frame=Fal
     new, kept = _on_rows(scaled, log_prior, log_lik, held, top, first)
 
     swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
-    if per_frame:  # log p(g_t | g_{<t}) of each frame of a block, (B, L, P)
+    if per_frame:  # log p(g_t | g_{<t}) of each frame of a block, (B, L, P); the plain scan, for forward mode
         return swap(jnp.log(_sticky_recursion(swap(new), swap(kept))[1])) + top[..., 0]
     return jnp.sum(_log_normalisers(swap(new), swap(kept)), axis=0) + jnp.sum(top[..., 0], axis=1)
 
@@ -534,7 +534,10 @@ def _sticky_recursion(new, kept):
 @jax.custom_vjp
 def _log_normalisers(new, kept):
     """``log n_t`` of :func:`_sticky_recursion`, ``(L, B, P)``, differentiated by the backward recursion written out
-    (:func:`_log_normalisers_bwd`) rather than by JAX's transpose of the scan."""
+    (:func:`_log_normalisers_bwd`) rather than by JAX's transpose of the scan: it keeps only ``α_t`` and ``n_t``, and
+    a gradient of the gaze model inside a compiled loop (as NUTS runs it) took 1.65 against 1.72 ms (60 s × 6 people,
+    one core; ``benchmarks/RESULTS.md``). Reverse mode only: :func:`frame_log_likelihood`, which
+    :func:`~jaxgaze.joint.infer.fit_joint` differentiates forwards, uses the plain scan."""
     return jnp.log(_sticky_recursion(new, kept)[1])
 
 
@@ -569,13 +572,14 @@ def _on_rows(fn, *arrays):
     """``fn`` of ``arrays`` broadcast to their common shape ``(B, L, …)``, run on rows ``(B, L, −1)`` and reshaped
     back: elementwise work only. XLA:CPU ran a fusion of a log, an exp or a division over ``(…, P, C)``, whose last two
     axes are short, 5–7 times slower than over the same numbers in rows (225 against 41 µs for a log, an exp and a
-    reciprocal of ``(640, 6, 8)``; 0.35 of the spot's 1.7 ms per gradient, ``benchmarks/RESULTS.md``)."""
+    reciprocal of ``(640, 6, 8)``; alone, each took 20–36 µs in either shape). On rows, the spot's part of a gradient
+    fell from 1.73 to 1.22 ms (head pose only, 60 s × 6 people, ``benchmarks/RESULTS.md``)."""
     shape = jnp.broadcast_shapes(*(a.shape for a in arrays))
     out = fn(*(jnp.broadcast_to(a, shape).reshape(shape[:2] + (-1,)) for a in arrays))
     return jax.tree.map(lambda a: a.reshape(shape), out)
 
 
-def _held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_variance, plain_scans=False):
+def _held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_variance):
     """``(B, L, P, P + K)``: log p(g_t | person or concurrence j held from t−1) − log p(g_t | j new) (a fixation's spot).
 
     Through a fixation the eyes rest on one spot of the target: the residual ``r_t = d_t − u_t(j)``
@@ -612,9 +616,8 @@ def _held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_varian
 
     inv_e = inv_e[..., None]
     weighed = jnp.stack([jnp.broadcast_to(inv_e, decay.shape)] + [inv_e * d for d in r])  # (1/e, r/e): (1 + D, B, L, …)
-    recurrence = _discounted_sums if plain_scans else _discounted_sums_adjoint
     to_time, from_time = (lambda x: jnp.moveaxis(x, 2, 0)), (lambda x: jnp.moveaxis(x, 0, 2))  # noqa: E731
-    totals = from_time(recurrence(to_time(weighed), to_time(decay[None])))  # A and S of the frames before t
+    totals = from_time(_discounted_sums(to_time(weighed), to_time(decay[None])))  # A and S of the frames before t
     def density(spot, e, w2, observed, A, *r_and_S):
         r, S = r_and_S[:len(r_and_S) // 2], r_and_S[len(r_and_S) // 2:]
         V = spot / (1.0 + spot * A)
@@ -641,38 +644,14 @@ def _discounted_sums(x, decay):
     return jax.lax.scan(step, jnp.zeros_like(x[0]), (x, decay))[1]
 
 
-@jax.custom_vjp
-def _discounted_sums_adjoint(x, decay):
-    """:func:`_discounted_sums`, differentiated by its own recurrence run backwards: the adjoint of
-    ``y_{t+1} = x_t + decay_t y_t`` is ``μ_t = ȳ_t + decay_t μ_{t+1}``, so ``∂L/∂x_t = μ_{t+1}`` and
-    ``∂L/∂decay_t = μ_{t+1} y_t`` (summed where ``decay`` broadcasts)."""
-    return _discounted_sums(x, decay)
-
-
-def _discounted_sums_fwd(x, decay):
-    totals = _discounted_sums(x, decay)
-    return totals, (totals, decay)
-
-
-def _discounted_sums_bwd(residuals, bar):
-    totals, decay = residuals
-    later = _discounted_sums(bar[::-1], decay[::-1])[::-1]  # μ_{t+1}
-    d_decay = later * totals
-    summed = tuple(i for i, n in enumerate(decay.shape) if n == 1 and totals.shape[i] != 1)
-    return later, jnp.sum(d_decay, axis=summed, keepdims=True)
-
-
-_discounted_sums_adjoint.defvjp(_discounted_sums_fwd, _discounted_sums_bwd)
-
-
 def _chain_log_likelihood(blocked_terms, observed, stay, shift=None, spot_variance=None, per_frame=False):
     """``log p (B, P)`` of candidate terms already in blocks ``(B, L, …)``: held glances and spots, then the forward pass
     (``per_frame``: ``(B, L, P)``, each frame's ``log p(g_t | g_{<t})``)."""
     log_prior, log_lik, directions, width, residuals = blocked_terms
     held = _held_elsewhere(log_lik, directions, width, observed)[..., None]
     if spot_variance is not None:
-        held = jnp.concatenate([_held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_variance,
-                                           per_frame), held], axis=-1)
+        held = jnp.concatenate([_held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_variance),
+                                held], axis=-1)
     return _forward(log_prior, log_lik, held, observed, stay, shift, per_frame)
 
 
