@@ -573,7 +573,7 @@ def _on_rows(fn, *arrays):
     back: elementwise work only. XLA:CPU ran a fusion of a log, an exp or a division over ``(…, P, C)``, whose last two
     axes are short, 5–7 times slower than over the same numbers in rows (225 against 41 µs for a log, an exp and a
     reciprocal of ``(640, 6, 8)``; alone, each took 20–36 µs in either shape). On rows, the spot's part of a gradient
-    fell from 1.73 to 1.22 ms (head pose only, 60 s × 6 people, ``benchmarks/RESULTS.md``)."""
+    fell from 1.75 to 1.26 ms (head pose only, 60 s × 6 people, ``benchmarks/RESULTS.md``)."""
     shape = jnp.broadcast_shapes(*(a.shape for a in arrays))
     out = fn(*(jnp.broadcast_to(a, shape).reshape(shape[:2] + (-1,)) for a in arrays))
     return jax.tree.map(lambda a: a.reshape(shape), out)
