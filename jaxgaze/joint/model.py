@@ -337,7 +337,7 @@ def _parts(params: dict, arrays: ModelArrays, prior: JointPrior):
     forward = directions_head[..., 0]  # cosine to the head's +x
     elsewhere = cone_direction_log_density(forward, jnp.asarray(prior.elsewhere_spread, forward.dtype))
     targets = jnp.concatenate(targets, axis=2)  # (T, P, P + K, 3), world
-    residuals = tuple(directions[:, :, None, d] - targets[..., d] for d in range(3))
+    residuals = tuple(directions[:, :, None, d] - targets[..., d] for d in range(3))  # components apart
     return people_logit, others, people_lik, slot_lik, elsewhere, directions, width[..., 0], residuals
 
 
@@ -377,7 +377,7 @@ def _head_only_terms(gaze, people_angles, eyes, R, locations, window, width, hea
     ``people_angles`` are the people's angles so, ``(T, gazer, target, 2)`` (data:
     :func:`people_head_angles`). Returns the people's, the concurrences' and elsewhere's log likelihoods, the world
     gaze angles from the head's mean direction ``(T, P, 2)`` that a held glance elsewhere is scored by,
-    the widths, and the residuals ``(T, P, P + K, 2)`` from the people and concurrences.
+    the widths, and the residuals from the people and concurrences, yaw and tilt apart (two ``(T, P, P + K)``).
     """
     T, P = gaze.shape[:2]
     # components apart, (yaw, tilt) each (T, P, C): the gradient's sums over the candidates are then over the last
@@ -594,7 +594,8 @@ def _held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_varian
     recurrence per block (``A_{t+1} = 1/e_t + a_t A_t``). The held frame's density is the
     new glance's cone times ``N(r_t; V S, V + e_t) / N(r_t; 0, w_t²)``, on the 2-D tangent plane
     (the world directions' difference, or head pose only the angles'). 0 at a block's first frame,
-    where ``t`` is not observed, and for ``c = 0``. ``spot_variance`` is ``c h²`` per person.
+    where ``t`` is not observed, and for ``c = 0``. ``spot_variance`` is ``c h²`` per person; ``residuals`` are the
+    ``D`` components of ``r`` apart, each ``(B, L, P, P + K)``.
     """
     log_prior = jnp.maximum(log_prior, _LOG_FLOOR)
     score = log_prior + jnp.maximum(log_lik, _LOG_FLOOR)
@@ -618,6 +619,7 @@ def _held_spot(log_prior, log_lik, residuals, width, observed, stay, spot_varian
     weighed = jnp.stack([jnp.broadcast_to(inv_e, decay.shape)] + [inv_e * d for d in r])  # (1/e, r/e): (1 + D, B, L, …)
     to_time, from_time = (lambda x: jnp.moveaxis(x, 2, 0)), (lambda x: jnp.moveaxis(x, 0, 2))  # noqa: E731
     totals = from_time(_discounted_sums(to_time(weighed), to_time(decay[None])))  # A and S of the frames before t
+
     def density(spot, e, w2, observed, A, *r_and_S):
         r, S = r_and_S[:len(r_and_S) // 2], r_and_S[len(r_and_S) // 2:]
         V = spot / (1.0 + spot * A)
