@@ -4,9 +4,11 @@ A gradient of the potential timed inside a compiled loop (``jax.lax.fori_loop`` 
 XLA hoists what depends on the data alone, as it does inside NUTS and BFGS; a gradient called on its own times that
 work too and misleads. Four models of one scene (``simulate_conversation(key(5))``, 60 s × 6 people, 10 fps): the gaze
 measured or head pose only, each without and with a fixation's spot, in one process, best of ``--rounds``, printed
-as ratios to the gaze model without the spot. ``--fits`` also times ``fit_joint`` twice on each input (NUTS 300 + 300;
-the second call reuses the compiled programs), the figure of issue 38's bound (head pose only within 1.5× of the
-gaze measured). Pin it to one core for figures (``taskset -c 0``); ``benchmarks/RESULTS.md`` has them.
+as ratios to the gaze model without the spot. ``--fits`` also times ``fit_joint`` twice on each input (NUTS 300 +
+300; the persistent compilation cache off; the second call reuses the compiled programs), the figure of issue 38's
+bound (head pose only within 1.5× of the gaze measured). Its first calls come after the gradients' compilations in
+the same process (the start's programs among them), so they are shorter than a fresh process's. Pin it to one core
+for figures (``taskset -c 0``); ``benchmarks/RESULTS.md`` has them.
 
     python benchmarks/bench_joint_gradient.py [--steps 50] [--rounds 5] [--fits]
 """
@@ -57,6 +59,7 @@ def main(argv=None) -> None:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--fits", action="store_true", help="also time fit_joint twice on each input")
     args = parser.parse_args(argv)
+    jax.config.update("jax_enable_compilation_cache", False)  # the first call compiles, as in a fresh install
     scene = simulate_conversation(jax.random.key(5), num_people=6, duration_s=60.0)
     runs = {}
     for head_only in (False, True):
