@@ -360,7 +360,7 @@ def people_head_angles(eye_positions: Float[Array, "T P 3"], R_world_from_head: 
 def _angle_log_density(residual, width):
     """``log N(r; 0, w² I)`` of a 2-D angle residual (yaw, tilt), not wrapped: a density on the plane of angles.
     ``residual`` is ``(…, 2)`` or its two components apart (a pair of arrays, :func:`_head_only_terms`)."""
-    square = jnp.sum(jnp.square(residual), axis=-1) if isinstance(residual, jax.Array) else sum(map(jnp.square, residual))
+    square = sum(map(jnp.square, residual)) if isinstance(residual, tuple) else jnp.sum(jnp.square(residual), axis=-1)
     return -0.5 * square / jnp.square(width) - jnp.log(2.0 * math.pi * jnp.square(width))
 
 
