@@ -341,10 +341,11 @@ def _parts(params: dict, arrays: ModelArrays, prior: JointPrior):
     return people_logit, others, people_lik, slot_lik, elsewhere, directions, width[..., 0], residuals
 
 
-def _from_head(direction: Float[Array, "... 3"], head: Float[Array, "... 2"]) -> Float[Array, "... 2"]:
-    """A direction's azimuth and elevation minus the head's, the azimuth wrapped: angles on the plane of world angles."""
-    angles = direction_to_gaze_angles(direction) - head
-    return jnp.stack([wrap_angle(angles[..., 0]), angles[..., 1]], axis=-1)
+def _from_head(direction: Float[Array, "... 3"], head_yaw, head_tilt) -> tuple[Array, Array]:
+    """A direction's azimuth and elevation minus the head's, the azimuth wrapped: angles on the plane of world angles,
+    as two arrays (stacked, a fusion over a short last axis was slow: :func:`_on_rows`)."""
+    yaw, tilt = direction_to_yaw_pitch(direction)
+    return wrap_angle(yaw - head_yaw), tilt - head_tilt
 
 
 def people_head_angles(eye_positions: Float[Array, "T P 3"], R_world_from_head: Float[Array, "T P 3 3"]
@@ -354,7 +355,8 @@ def people_head_angles(eye_positions: Float[Array, "T P 3"], R_world_from_head: 
     every evaluation they took a third of a gradient's time on its own (4.7 against 3.2 ms, 60 s × 6 people);
     inside NUTS's and BFGS's compiled loops XLA had already hoisted them, and a fit's time did not change."""
     head = direction_to_gaze_angles(R_world_from_head[..., :, 0])  # (T, P, 2)
-    return _from_head(unit(eye_positions[:, None, :, :] - eye_positions[:, :, None, :]), head[:, :, None])
+    toward = eye_positions[:, None, :, :] - eye_positions[:, :, None, :]
+    return jnp.stack(_from_head(toward, head[:, :, None, 0], head[:, :, None, 1]), axis=-1)
 
 
 def _angle_log_density(residual, width):
@@ -395,8 +397,8 @@ def _head_only_terms(gaze, people_angles, eyes, R, locations, window, width, hea
         head = direction_to_gaze_angles(R[..., :, 0])  # (T, P, 2): the head's azimuth and elevation, world
 
         def slots(gaze_yaw, gaze_tilt, x, y, z, head_yaw, head_tilt, width):
-            yaw, tilt = direction_to_yaw_pitch(jnp.stack([x, y, z], axis=-1))  # as _from_head, components apart
-            residual = (gaze_yaw - wrap_angle(yaw - head_yaw), gaze_tilt - (tilt - head_tilt))
+            yaw, tilt = _from_head(jnp.stack([x, y, z], axis=-1), head_yaw, head_tilt)
+            residual = (gaze_yaw - yaw, gaze_tilt - tilt)
             return residual + (_angle_log_density(residual, width),)
 
         toward = locations[window][:, None] - eyes[:, :, None]  # (T, P, K, 3)
