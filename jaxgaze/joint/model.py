@@ -572,7 +572,9 @@ _log_normalisers.defvjp(_log_normalisers_fwd, _log_normalisers_bwd)
 
 def _on_rows(fn, *arrays):
     """``fn`` of ``arrays`` broadcast to their common shape ``(B, L, …)``, run on rows ``(B, L, −1)`` and reshaped
-    back: elementwise work only. XLA:CPU ran a fusion of a log, an exp or a division over ``(…, P, C)``, whose last two
+    back: elementwise work only. A three-axis shape such as head pose only's ``(T, P, C)`` keeps its axes (its inputs are
+    only broadcast into one fusion): flattening it further was slower inside the model (3.65 against 3.44 ms for one
+    axis, 2026-12-06). XLA:CPU ran a fusion of a log, an exp or a division over ``(…, P, C)``, whose last two
     axes are short, 5–7 times slower than over the same numbers in rows (225 against 41 µs for a log, an exp and a
     reciprocal of ``(640, 6, 8)``; alone, each took 20–36 µs in either shape). On rows, the spot's part of a gradient
     fell from 1.75 to 1.26 ms (head pose only, 60 s × 6 people, ``benchmarks/RESULTS.md``)."""

@@ -309,6 +309,19 @@ def test_the_written_out_adjoint_matches_autodiff_of_the_scan(x64):
         np.testing.assert_allclose(ours, reference, rtol=1e-10, atol=1e-12)
 
 
+def test_the_spots_discounted_sums_are_the_closed_form(x64):
+    """``y_t = Σ_{s<t} x_s Π_{s<u<t} decay_u`` (``model._discounted_sums``), against the double sum written out, with
+    the decay broadcast over the sums' components as ``_held_spot`` passes it."""
+    rng = np.random.default_rng(8)
+    L = 7
+    x, decay = rng.normal(size=(L, 3, 2)), rng.random((L, 1, 2))
+    expected = np.zeros_like(x)
+    for t in range(L):
+        for s in range(t):
+            expected[t] += x[s] * np.prod(decay[s + 1:t], axis=0)
+    np.testing.assert_allclose(model._discounted_sums(jnp.asarray(x), jnp.asarray(decay)), expected, rtol=1e-12)
+
+
 def _valid():
     data, _, _ = _tiny(seed=4, T=3, P=3)
     return dict(eye_positions=data.eye_positions, R_world_from_head=data.R_world_from_head,
