@@ -27,7 +27,6 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 from numpyro.infer.hmc import hmc
-from numpyro.infer.hmc_util import dual_averaging
 from numpyro.infer.util import constrain_fn, potential_energy
 
 from jaxgaze import _progress
@@ -59,14 +58,12 @@ def _one_chain(model, key, model_args, init_params, inverse_mass_matrix, num_war
         return functools.partial(potential_energy, model, args, {})
 
     init_kernel, sample_kernel = hmc(potential_fn_gen=potential_fn_gen, algo="NUTS")
-    fixed_mass = inverse_mass_matrix is not None
-    state = init_kernel(init_params, 0 if fixed_mass else num_warmup, inverse_mass_matrix=inverse_mass_matrix,
-                        adapt_mass_matrix=not fixed_mass, dense_mass=dense_mass,
+    state = init_kernel(init_params, num_warmup, inverse_mass_matrix=inverse_mass_matrix,
+                        adapt_mass_matrix=inverse_mass_matrix is None, dense_mass=dense_mass,
                         target_accept_prob=target_accept_prob, model_args=model_args, rng_key=key)
-    adapt_step_size = _step_size_adaptation(num_warmup, target_accept_prob) if fixed_mass else lambda s, i: s
 
     def step(s, i):
-        s = adapt_step_size(sample_kernel(s, model_args=model_args), i)
+        s = sample_kernel(s, model_args=model_args)
         jax.lax.cond((i + 1) % REPORT_EVERY == 0, lambda: jax.debug.callback(_progress.reach, i + 1), lambda: None)
         stats = {"diverging": s.diverging, "acceptance_rate": s.accept_prob, "n_steps": s.num_steps,
                  "lp": -s.potential_energy}
@@ -78,27 +75,6 @@ def _one_chain(model, key, model_args, init_params, inverse_mass_matrix, num_war
     # can be large enough for XLA:CPU to split them over its thread pool and deadlock (see _batching).
     values = jax.lax.map(lambda u: constrain_fn(model, model_args, {}, u, return_deterministic=True), z)
     return values, stats
-
-
-def _step_size_adaptation(num_warmup: int, target_accept_prob: float):
-    """With the mass matrix fixed, the step size's dual averaging (Hoffman & Gelman 2014, Sec. 3.2) over the whole
-    warm-up, one window, ending at the averaged step size: numpyro's schedule restarts it (at ten times the step
-    size) at the end of each of Stan's mass-matrix windows even when the matrix stays, and on the joint model
-    those restarts cost 10–13% of head pose only's leapfrog steps and 4–6% of the gaze model's
-    (``benchmarks/RESULTS.md``). numpyro's own dual averaging and constants; its kernel is started with no
-    warm-up, so it only moves (its initial step size is numpyro's heuristic one all the same)."""
-    _, update = dual_averaging()
-
-    def adapt(s, i):
-        dual = update(target_accept_prob - s.accept_prob, s.adapt_state.ss_state)
-        log_step = jnp.where(i == num_warmup - 1, dual[1], dual[0])  # the average at the warm-up's end
-        step_size = jnp.clip(jnp.exp(log_step), jnp.finfo(log_step.dtype).tiny, jnp.finfo(log_step.dtype).max)
-        warming = i < num_warmup
-        return s._replace(adapt_state=s.adapt_state._replace(
-            step_size=jnp.where(warming, step_size, s.adapt_state.step_size),
-            ss_state=jax.tree_util.tree_map(functools.partial(jnp.where, warming), dual, s.adapt_state.ss_state)))
-
-    return adapt
 
 
 @functools.partial(jax.jit, static_argnames=("model", "num_warmup", "num_samples", "dense_mass", "target_accept_prob"))
@@ -142,7 +118,7 @@ def sample_nuts(
         inverse_mass_matrix: ``None`` (start from the identity and adapt the mass matrix
             in the warm-up windows), or ``(B, D, D)`` (``(B, D)`` diagonal) per chain, over
             the parameters flattened in ``jax.tree_util`` order, kept fixed while the
-            step size adapts over the whole warm-up (:func:`_step_size_adaptation`). A good one, such as the inverse Hessian of the potential
+            step size adapts. A good one, such as the inverse Hessian of the potential
             at the mode, saves the warm-up's early windows, which with the identity take
             hundreds of leapfrog steps per draw on a badly scaled posterior.
         progress: show a tqdm bar over all iterations of all chains.

@@ -9,10 +9,7 @@ import numpyro
 import numpyro.distributions as dist
 import pytest
 
-from numpyro.infer.hmc import hmc
-from numpyro.infer.hmc_util import dual_averaging
-
-from jaxgaze.nuts import _step_size_adaptation, laplace_inverse_mass, sample_nuts
+from jaxgaze.nuts import laplace_inverse_mass, sample_nuts
 
 # A badly scaled posterior: 'a' has sd 1e-3, 'b' is 2-D with sd 50 and 0.2 and correlation 0.9.
 A_SD = 1e-3
@@ -68,31 +65,6 @@ def test_fixed_mass_matrix_samples_a_badly_scaled_gaussian():
     # whitened by its exact covariance, the target is a standard normal: short trajectories
     assert np.mean(stats["n_steps"]) < 8
     assert not np.any(stats["diverging"])
-
-
-def test_fixed_mass_step_size_adapts_in_one_window():
-    """With the mass matrix fixed, the step size is numpyro's dual averaging over the whole warm-up (no restart at
-    Stan's window ends, which numpyro's schedule makes at 75, 100, 150 and 250 of 300), then its average, kept."""
-    init_kernel, _ = hmc(potential_fn=lambda z: 0.5 * jnp.sum(jnp.square(z)), algo="NUTS")
-    state = init_kernel(jnp.zeros(3), 0, inverse_mass_matrix=jnp.ones(3), adapt_mass_matrix=False,
-                        rng_key=jax.random.key(0))
-    num_warmup, target = 300, 0.8
-    accept = np.random.default_rng(0).uniform(0.6, 1.0, num_warmup + 50).astype(np.float32)
-    adapt = jax.jit(_step_size_adaptation(num_warmup, target))
-    steps = []
-    for i, a in enumerate(accept):
-        state = adapt(state._replace(accept_prob=jnp.asarray(a)), i)
-        steps.append(float(state.adapt_state.step_size))
-    start, update = dual_averaging()
-    dual = start(np.log(10.0 * float(init_kernel(jnp.zeros(3), 0, inverse_mass_matrix=jnp.ones(3),
-                                                        adapt_mass_matrix=False,
-                                                        rng_key=jax.random.key(0)).adapt_state.step_size)))
-    reference = []
-    for i, a in enumerate(accept[:num_warmup]):
-        dual = update(target - a, dual)
-        reference.append(float(np.exp(dual[1] if i == num_warmup - 1 else dual[0])))
-    reference += [reference[-1]] * 50
-    np.testing.assert_allclose(steps, reference, rtol=1e-4)
 
 
 def test_inverse_mass_matrix_shape_is_checked():

@@ -842,8 +842,8 @@ def fit_joint(
             then dropped (Laplace evidence; :func:`_prune_concurrences`) and every person's rival
             bias modes compared (:mod:`~jaxgaze.joint.rivals`): NUTS samples each mode that
             carries weight, SVI only the best (its ``result`` is ``ambiguous`` all the same). NUTS uses the inverse Hessian of the
-            potential there as its mass matrix, fixed (only the step size adapts, in
-            one window over the whole warm-up); with wearers of head-mounted cameras, whose eyes the start
+            potential there as its mass matrix, fixed (only the step size adapts in
+            the warm-up); with wearers of head-mounted cameras, whose eyes the start
             holds, it learns the mass matrix in the warm-up windows instead. For head pose only
             the couplings' draws are then widened for head errors correlated over seconds
             (:func:`_coupling_widening`).
