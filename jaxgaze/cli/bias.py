@@ -198,7 +198,7 @@ def run(args) -> int:
     if not succeeded(result.estimate):
         d = result.estimate.sampler.diagnostics
         print(f"jaxgaze bias: the posterior failed: {RESULTS[result.estimate.result]} (split r-hat {d.max_rhat:.3g}, "
-              f"bulk ESS {d.min_ess_bulk:.0f}, {d.divergences} of {d.draws} draws divergent, acceptance "
+              f"bulk ESS {d.min_ess_bulk:.0f}, tail ESS {d.min_ess_tail:.0f}, {d.divergences} of {d.draws} draws divergent, acceptance "
               f"{d.acceptance_rate:.2f}); written to {args.out}; try more --samples or --method lmeds", file=sys.stderr)
         return 1
     spread = "" if record["std_deg"] is None else " ± ({:.2f}°, {:.2f}°)".format(*record["std_deg"])

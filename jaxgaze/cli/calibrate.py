@@ -196,7 +196,7 @@ def run(args) -> int:
         d = posterior.sampler.diagnostics
         files = args.out if args.posterior is None else f"{args.out} and {args.posterior}"
         print(f"jaxgaze calibrate: the posterior failed: {RESULTS[posterior.result]} (split r-hat "
-              f"{d.max_rhat:.3g}, bulk ESS {d.min_ess_bulk:.0f}, {d.divergences} of {d.draws} divergent, "
+              f"{d.max_rhat:.3g}, bulk ESS {d.min_ess_bulk:.0f}, tail ESS {d.min_ess_tail:.0f}, {d.divergences} of {d.draws} divergent, "
               f"acceptance {d.acceptance_rate:.2f}); written to {files} for inspection",
               file=sys.stderr)
         return 1

@@ -493,7 +493,7 @@ def test_bias_progress_bar_on_tty(dyad, tmp_path, capsys, monkeypatch):
         assert lines[:-1] == ([] if quiet else stages), lines
         lines = lines[-1:]
         assert len(lines) == 1 and lines[0].startswith("jaxgaze bias: the posterior failed: the sampler did not mix")
-        assert "bulk ESS" in lines[0] and "--samples" in lines[0] and "RuntimeWarning" not in stderr
+        assert "bulk ESS" in lines[0] and "tail ESS" in lines[0] and "--samples" in lines[0] and "RuntimeWarning" not in stderr
     assert [c["progress"] for c in calls] == [True, False]
     assert calls[0]["num_warmup"] == calls[0]["num_samples"] == 8
     record = json.loads(out.read_text())

@@ -150,7 +150,7 @@ def test_calibrate_posterior_that_did_not_mix_exits_1(session, tmp_path, capsys,
     warning, line = stderr.splitlines()  # the point estimate is implausible, but a failed posterior cannot replace it
     assert warning.startswith("jaxgaze: warning: the RANSAC eye centre") and "the point estimate is kept" in warning
     assert line.startswith("jaxgaze calibrate: the posterior failed: the sampler did not mix")
-    assert "bulk ESS" in line and "RuntimeWarning" not in stderr
+    assert "bulk ESS" in line and "tail ESS" in line and "RuntimeWarning" not in stderr
     record = json.loads(out.read_text())
     summary = record["posterior"]
     assert summary["result"] == "not_mixed" and summary["ess_bulk_min"] < 100
