@@ -65,6 +65,14 @@ QUIET_HELP = ("quiet: no progress bar (it is also off when stderr is not a termi
               "summary; warnings and errors are still shown")
 
 
+def sampler_figures(diagnostics) -> str:
+    """The figures behind a sampler's verdict (``nuts.MixingDiagnostics``), for a command's failure line: each one
+    that :func:`jaxgaze.nuts.mixing_result` checks."""
+    d = diagnostics
+    return (f"split r-hat {d.max_rhat:.3g}, bulk ESS {d.min_ess_bulk:.0f}, tail ESS {d.min_ess_tail:.0f}, "
+            f"{d.divergences} of {d.draws} draws divergent, acceptance {d.acceptance_rate:.2f}")
+
+
 def add_quiet(parser) -> None:
     """``-q/--quiet`` (:data:`QUIET_HELP`), the same in every command."""
     parser.add_argument("-q", "--quiet", action="store_true", help=QUIET_HELP)

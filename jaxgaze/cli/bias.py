@@ -12,7 +12,8 @@ import jax
 from jaxgaze.bias.adapt import DEFAULT_NUM_FRAMES, BIAS_FRAME_COLUMNS, BiasInputError, adapt_bias
 from jaxgaze.bias.speech import choose_partner
 from jaxgaze.cli._common import (CommandError, add_output, add_quiet, add_trust_units, declare_inputs, int_at_least,
-                                 positive_float, show_progress, stage, summary, unit_rule, warn, writing)
+                                 positive_float, sampler_figures, show_progress, stage, summary, unit_rule, warn,
+                                 writing)
 from jaxgaze.io.bias_report import BIAS_JSON_FORMAT, bias_record, write_bias_report
 from jaxgaze.io.gaze import REFERENCE_AXES, GazeFileError, parse_point, read_gaze, read_targets_csv
 from jaxgaze.io.joint import read_speech
@@ -196,10 +197,9 @@ def run(args) -> int:
     with writing(args.out):
         write_bias_report(args.out, record, args.per_frame)
     if not succeeded(result.estimate):
-        d = result.estimate.sampler.diagnostics
-        print(f"jaxgaze bias: the posterior failed: {RESULTS[result.estimate.result]} (split r-hat {d.max_rhat:.3g}, "
-              f"bulk ESS {d.min_ess_bulk:.0f}, tail ESS {d.min_ess_tail:.0f}, {d.divergences} of {d.draws} draws divergent, acceptance "
-              f"{d.acceptance_rate:.2f}); written to {args.out}; try more --samples or --method lmeds", file=sys.stderr)
+        print(f"jaxgaze bias: the posterior failed: {RESULTS[result.estimate.result]} "
+              f"({sampler_figures(result.estimate.sampler.diagnostics)}); written to {args.out}; try more --samples or "
+              "--method lmeds", file=sys.stderr)
         return 1
     spread = "" if record["std_deg"] is None else " ± ({:.2f}°, {:.2f}°)".format(*record["std_deg"])
     summary(args, f"bias (yaw, tilt) = ({record['bias_deg'][0]:+.2f}°, {record['bias_deg'][1]:+.2f}°){spread} "

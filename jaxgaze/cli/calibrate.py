@@ -9,7 +9,7 @@ import os
 import sys
 import warnings
 
-from jaxgaze.cli._common import add_output, add_quiet
+from jaxgaze.cli._common import add_output, add_quiet, sampler_figures
 from jaxgaze.cli._common import CommandError, check_output, int_at_least, show_progress, summary, warn, writing
 from jaxgaze.cli._common import add_trust_units, declare_inputs, stage, unit_rule
 
@@ -193,12 +193,9 @@ def run(args) -> int:
         record = write_calibration_json(args.out, wearer, fit, posterior=posterior, posterior_path=args.posterior,
                                         num_warmup=args.samples, choice=choice)
     if posterior is not None and not succeeded(posterior):
-        d = posterior.sampler.diagnostics
         files = args.out if args.posterior is None else f"{args.out} and {args.posterior}"
-        print(f"jaxgaze calibrate: the posterior failed: {RESULTS[posterior.result]} (split r-hat "
-              f"{d.max_rhat:.3g}, bulk ESS {d.min_ess_bulk:.0f}, tail ESS {d.min_ess_tail:.0f}, {d.divergences} of {d.draws} divergent, "
-              f"acceptance {d.acceptance_rate:.2f}); written to {files} for inspection",
-              file=sys.stderr)
+        print(f"jaxgaze calibrate: the posterior failed: {RESULTS[posterior.result]} "
+              f"({sampler_figures(posterior.sampler.diagnostics)}); written to {files} for inspection", file=sys.stderr)
         return 1
     d = record["direction"]
     estimate = " (posterior mean)" if record["method"] == "posterior mean" else ""
