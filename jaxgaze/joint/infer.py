@@ -37,7 +37,7 @@ from jaxgaze.joint.init import JointStart, joint_start, model_arrays
 from jaxgaze.joint import rivals
 from jaxgaze.joint.model import (BLOCK_FRAMES, COUPLING_SHAPE_BASIS, POSITIVE_SITES, UNIT_SITES, JointPrior, ModelArrays, concurrence_locations, eye_positions,
                                  frame_log_likelihood, gaze_angles, joint_model, measurement_width, model_params,
-                                 target_log_prior, target_marginals)
+                                 slot_mask, target_log_prior, target_marginals)
 from jaxgaze.nuts import (MAX_DIVERGENT_SHARE, MAX_RHAT, MIN_ESS, SamplerReport, laplace_inverse_mass,
                           posterior_summary, sample_nuts, sampler_report)
 from jaxgaze._progress import progress_bar
@@ -298,16 +298,53 @@ def _laplace_parts(unconstrained: dict, arrays: ModelArrays, prior: JointPrior):
 
 
 def _without_concurrence(values: dict, arrays: ModelArrays, k: int):
-    """``values`` and ``arrays`` with concurrence slot ``k`` removed."""
+    """``values`` and ``arrays`` with concurrence slot ``k`` masked (``ModelArrays.slot_active``), its offsets at
+    their prior's centre. The shapes stay, and so do the compiled programs of :func:`_to_mode` and
+    :func:`_laplace_parts`: removed, each count of slots compiled them again (15–20 s of a first fit, RESULTS). The
+    masked slot's offsets (and ``α_object`` once every slot is masked) are then prior-only standard normals: their
+    Laplace term is exactly 0, so the evidence is the smaller model's (:func:`_drop_masked_slots` removes them)."""
     out = dict(values)
-    K = arrays.location_centres.shape[1]
-    keep = jnp.asarray([j for j in range(K) if j != k], jnp.int32)
-    out["concurrence_offset"] = values["concurrence_offset"][keep]
+    out["concurrence_offset"] = values["concurrence_offset"].at[k].set(0.0)
     if "concurrence_drift" in values:
-        out["concurrence_drift"] = values["concurrence_drift"][:, keep]
-    if K == 1:
-        out = {name: v for name, v in out.items() if not name.startswith(("concurrence_", "alpha_object"))}
-    return out, arrays._replace(location_centres=arrays.location_centres[:, keep])
+        out["concurrence_drift"] = values["concurrence_drift"].at[:, k].set(0.0)
+    return out, arrays._replace(slot_active=slot_mask(arrays).at[k].set(False))
+
+
+def _drop_masked(values: dict, arrays: ModelArrays, inverse=None):
+    """``values``, ``arrays`` and an inverse Hessian of them (or ``None``) without the slots masked by
+    :func:`_without_concurrence`; ``α_object`` goes too when no slot is left."""
+    active = np.asarray(slot_mask(arrays))
+    if active.all():
+        return values, arrays, inverse
+    keep = np.flatnonzero(active)
+
+    def drop(tree: dict) -> dict:
+        out = {**tree, "concurrence_offset": tree["concurrence_offset"][keep]}
+        if "concurrence_drift" in tree:
+            out["concurrence_drift"] = tree["concurrence_drift"][:, keep]
+        if not keep.size:
+            out = {k: v for k, v in out.items() if not k.startswith(("concurrence_", "alpha_object"))}
+        return out
+
+    if inverse is not None:  # the rows and columns of what is kept, in jax.tree_util's order (the mass matrix's)
+        flat, unravel = ravel_pytree(values)
+        rows = np.asarray(ravel_pytree(drop(unravel(jnp.arange(flat.size, dtype=flat.dtype))))[0]).round().astype(int)
+        inverse = jnp.asarray(inverse)[np.ix_(rows, rows)]
+    smaller = arrays._replace(location_centres=arrays.location_centres[:, keep], slot_active=jnp.ones(keep.size, bool))
+    return drop(values), smaller, inverse
+
+
+def _drop_masked_slots(search, inverse, arrays: ModelArrays):
+    """The search's modes (:func:`_search_modes`), the chosen mode's inverse Hessian and ``arrays`` without the slots
+    the pruning masked: NUTS and SVI sample only the concurrences kept."""
+    if np.asarray(slot_mask(arrays)).all():
+        return search, inverse, arrays
+    P, K = arrays.present.shape[1], arrays.location_centres.shape[1]
+    columns = np.concatenate([np.arange(P), P + np.flatnonzero(np.asarray(slot_mask(arrays))), [P + K]])
+    start, smaller, inverse = _drop_masked(search.start, arrays, inverse)
+    starts = tuple(_drop_masked(values, arrays, mass)[::2] for values, mass in search.alternative_starts)
+    alternatives = tuple(a._replace(membership=a.membership[:, columns]) for a in search.alternatives)
+    return search._replace(start=start, alternatives=alternatives, alternative_starts=starts), inverse, smaller
 
 
 def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, progress: bool):
@@ -319,8 +356,9 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
     with an ESS of 10 in 100 (against 7 steps and 113 with one slot). The
     evidence counts the extra slot's volume against the little it explains: one slot
     is dropped at a time, the one whose removal raises the evidence most, each removal
-    refined from the current mode (:func:`_to_mode`). Returns the values, the arrays, the slots kept
-    (indices into the start's) and the kept mode's ``(evidence, inverse Hessian)`` (for :func:`_search_modes`).
+    refined from the current mode (:func:`_to_mode`). Returns the values and the arrays (the dropped slots masked,
+    :func:`_without_concurrence`), the slots kept (indices into the start's) and the kept mode's
+    ``(evidence, inverse Hessian)`` (for :func:`_search_modes`).
 
     :func:`fit_joint` prunes with the model without a fixation's spot, whose choice follows
     (:func:`_choose_spot`): a BFGS program and a Hessian of the spot's model per concurrence count
@@ -335,7 +373,7 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
             bar.total = (bar.total or 0) + len(kept)
             for k in range(len(kept)):
                 bar.update(1)
-                values, smaller = _without_concurrence(unconstrained, arrays, k)
+                values, smaller = _without_concurrence(unconstrained, arrays, kept[k])
                 values = _to_mode(values, smaller, prior)
                 trial = _laplace_evidence(values, smaller, prior)
                 if math.isfinite(trial[0]) and trial[0] > scored[0] and (best is None or trial[0] > best[0][0]):
@@ -889,10 +927,8 @@ def fit_joint(
                                concurrence_support=start.concurrence_support[keep])
         arrays, unconstrained = refined(start)
     search, scored, spot_factor, shape_factor = None, None, None, None
-    if at_mode:
+    if at_mode:  # the slots dropped stay masked, so that what follows shares the pruning's programs
         unconstrained, arrays, kept, scored = _prune_concurrences(unconstrained, arrays, plain, progress)
-        start = start._replace(concurrence_centres=start.concurrence_centres[:, kept],
-                               concurrence_support=start.concurrence_support[kept])
     shape_scale, prior = prior.coupling_shape_scale, prior._replace(coupling_shape_scale=None)
     if prior.held_scale is not None and at_mode:
         prior, unconstrained, spot_factor = _choose_spot(unconstrained, arrays, prior)
@@ -905,13 +941,18 @@ def fit_joint(
         shape_start = {k: jnp.asarray(v, dtype) for k, v in
                        _unconstrained(_start_values(start, shaped, data.num_people)).items()}
         prior, unconstrained, shape_factor, scored = _choose_shape(unconstrained, shape_start, arrays, shaped, scored)
-    K = start.num_concurrences
     if at_mode:
         search, inverse_hessian = _search_modes(unconstrained, arrays, prior, data.wearers, progress, scored)
         unconstrained = search.start
     widening = None  # head pose only: the couplings' intervals for errors correlated over seconds
     if at_mode and data.head_motion is not None:
         widening = _coupling_widening(unconstrained, inverse_hessian, arrays, prior, data.fps)
+    if at_mode:
+        search, inverse_hessian, arrays = _drop_masked_slots(search, inverse_hessian, arrays)
+        unconstrained = search.start
+        start = start._replace(concurrence_centres=start.concurrence_centres[:, kept],
+                               concurrence_support=start.concurrence_support[kept])
+    K = start.num_concurrences
     if method == "nuts":
         modes = [(unconstrained, inverse_hessian if at_mode else None)] + list(search.alternative_starts if search else ())
         gaps = np.array([0.0] + [a.log_evidence_gap for a in (search.alternatives if search else ())])

@@ -140,7 +140,7 @@ def model_arrays(data: JointData, centres, dtype) -> ModelArrays:
                        people_head_angles(f(data.eye_positions), f(data.R_world_from_head)),
                        f(np.zeros((T, P, 0)) if data.head_motion is None else data.head_motion), f(centres),
                        f(data.calibration_points), jnp.asarray(data.calibration_mask),
-                       jnp.asarray(data.wearers, jnp.int32).reshape(-1))
+                       jnp.asarray(data.wearers, jnp.int32).reshape(-1), jnp.ones(np.shape(centres)[1], bool))
 
 
 def coupling_profile(data: JointData, key, *, head_lag: float = START_HEAD_LAG,

@@ -181,6 +181,9 @@ class ModelArrays(NamedTuple):
     its mean direction, their rates per second and the frame rate where the previous
     frame is present, else 0; ``gaze_angles`` unused; :class:`~jaxgaze.joint.JointData`) and
     ``(T, P, 0)`` when the gaze is measured. The first nine fields are per frame.
+    ``slot_active`` ``(K,)`` marks the concurrence slots that are candidates (``None``: all). A masked slot is no
+    target (its prior is 0 and the others' share is as if it were gone), and its latent offsets are left to their
+    prior. So the pruning of :func:`~jaxgaze.joint.fit_joint` tries fewer slots with the same compiled programs.
     """
 
     eye_positions: Float[Array, "T P 3"]
@@ -196,6 +199,7 @@ class ModelArrays(NamedTuple):
     calibration_points: Float[Array, "P M 3"]
     calibration_mask: Bool[Array, "P M"]
     wearer_index: Int[Array, " Nw"]
+    slot_active: Bool[Array, " K"] | None = None
 
 
 def concurrence_locations(latent: dict, centres: Float[Array, "W K 3"], prior: JointPrior) -> Float[Array, "W K 3"]:
@@ -416,23 +420,31 @@ def _head_only_terms(gaze, people_angles, eyes, R, locations, window, width, hea
     return people_lik, slot_lik, elsewhere, head_motion[..., :2] + gaze, width[..., 0], residuals
 
 
-def _log_normaliser(people_logit, num_slots: int, alpha_object):
-    """``log Σ_j exp(logit_j)`` over every candidate: people, ``K`` concurrences, elsewhere (logit 0)."""
+def _log_normaliser(people_logit, slot_active, alpha_object):
+    """``log Σ_j exp(logit_j)`` over every candidate: people, the active concurrences, elsewhere (logit 0)."""
     # floored: with nobody else present, a logsumexp of −inf alone has a NaN derivative in forward mode
     terms = [logsumexp(jnp.maximum(people_logit, _LOG_FLOOR), axis=-1), jnp.zeros(people_logit.shape[:2], people_logit.dtype)]
-    if num_slots:
-        terms.append(jnp.broadcast_to(alpha_object + math.log(num_slots), people_logit.shape[:2]))
+    if slot_active.shape[0]:
+        count = jnp.sum(slot_active).astype(people_logit.dtype)
+        slots = jnp.where(count > 0, alpha_object + jnp.log(jnp.maximum(count, 1.0)), -jnp.inf)
+        terms.append(jnp.broadcast_to(slots, people_logit.shape[:2]))
     return logsumexp(jnp.stack(terms), axis=0)
+
+
+def slot_mask(arrays: ModelArrays):
+    """``(K,)``: which concurrence slots are candidates (all of them unless :class:`ModelArrays` masks some)."""
+    K = arrays.location_centres.shape[1]
+    return jnp.ones(K, bool) if arrays.slot_active is None else arrays.slot_active
 
 
 def _candidate_terms(params: dict, arrays: ModelArrays, prior: JointPrior):
     """``log π_ti(j)`` (the prior of a new target) and ``log p(g_ti | z_ti = j)``, each ``(T, P, C)``, with the
     world gaze directions ``(T, P, 3)`` and widths ``(T, P)`` that a held glance elsewhere is scored by."""
     people_logit, others, people_lik, slot_lik, elsewhere, directions, width, residuals = _parts(params, arrays, prior)
-    K = slot_lik.shape[-1]
-    log_z = _log_normaliser(people_logit, K, params["alpha_object"])[..., None]
-    log_prior = jnp.concatenate([people_logit, jnp.broadcast_to(params["alpha_object"], slot_lik.shape),
-                                 jnp.zeros_like(elsewhere)[..., None]], axis=-1) - log_z
+    active = slot_mask(arrays)
+    log_z = _log_normaliser(people_logit, active, params["alpha_object"])[..., None]
+    slot_logit = jnp.broadcast_to(jnp.where(active, params["alpha_object"], -jnp.inf), slot_lik.shape)
+    log_prior = jnp.concatenate([people_logit, slot_logit, jnp.zeros_like(elsewhere)[..., None]], axis=-1) - log_z
     log_lik = jnp.concatenate([jnp.where(others, people_lik, -jnp.inf), slot_lik, elsewhere[..., None]], axis=-1)
     return log_prior, log_lik, directions, width, residuals
 
@@ -755,6 +767,7 @@ def joint_model(
     calibration_points,
     calibration_mask,
     wearer_index,
+    slot_active=None,
     *,
     prior: JointPrior = JointPrior(),
     blocks_per_step: int | None = None,
@@ -810,7 +823,7 @@ def joint_model(
             params["coupling_shape"] = weights * coupling_shape_spectrum(prior.coupling_shape_scale, dtype)
     arrays = ModelArrays(eye_positions, R_world_from_head, gaze_angles, present, speaking, measurement_scale, window,
                          to_people_head, head_motion, location_centres, calibration_points, calibration_mask,
-                         wearer_index)
+                         wearer_index, slot_active)
     num_wearers = wearer_index.shape[0]
     if num_wearers:
         params["eye_offset"] = numpyro.sample(

@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax.flatten_util import ravel_pytree
 from numpyro import handlers
 from numpyro.infer.util import potential_energy
 
@@ -16,9 +17,9 @@ from jaxgaze.cone import cone_direction_log_density
 from jaxgaze.geometry import head_pose_to_rotation
 from jaxgaze.joint import BLOCK_FRAMES, JointPrior, joint_data, target_marginals
 from jaxgaze.joint.model import candidate_log_probabilities, joint_model, marginal_log_likelihood
-from jaxgaze.joint.infer import _arrays
+from jaxgaze.joint.infer import _arrays, _drop_masked
 from jaxgaze.joint import model
-from jaxgaze.joint.model import MAX_HELD_CONE_SHARE, _candidate_terms
+from jaxgaze.joint.model import MAX_HELD_CONE_SHARE, ModelArrays, _candidate_terms
 
 
 def _tiny(seed=0, T=2, P=3, K=1):
@@ -391,3 +392,53 @@ def test_the_likelihood_finds_the_share_a_fixation_holds(share):
     values = [float(jnp.sum(_marginal_log_likelihood({**params, "held_cone_share": jnp.float32(c)}, arrays)))
               for c in shares]
     assert shares[int(np.argmax(values))] == share, values
+
+
+@pytest.mark.parametrize("spot", [None, 0.6])
+def test_a_masked_slot_is_the_model_without_it(x64, spot):
+    """``ModelArrays.slot_active``: a masked concurrence is no candidate, and the others' priors are as if it were
+    gone (the fit's pruning tries fewer slots with the same programs). Against the arrays with the slot removed: the
+    likelihood and every target's posterior, with and without a fixation's spot, one slot masked or both."""
+    data, centres, params = _tiny(seed=5, T=5, K=2)
+    params = {**params, "locations": params["locations"] + np.array([0.0, 0.0, 0.3]) * np.arange(2)[:, None],
+              **({} if spot is None else {"held_cone_share": spot})}
+    arrays = _arrays(data, centres, jnp.float64)
+    for active in ([True, False], [False, True], [False, False]):
+        keep = np.flatnonzero(active)
+        masked = arrays._replace(slot_active=jnp.asarray(active))
+        smaller = arrays._replace(location_centres=arrays.location_centres[:, keep], slot_active=None)
+        removed = {**params, "locations": params["locations"][:, keep],
+                   "alpha_object": params["alpha_object"] if keep.size else 0.0}  # no slot: α_object is 0
+        masked_p, removed_p = (jax.tree_util.tree_map(jnp.asarray, p) for p in (params, removed))
+        expected = np.asarray(_marginal_log_likelihood(removed_p, smaller))
+        np.testing.assert_allclose(np.asarray(_marginal_log_likelihood(masked_p, masked)), expected, rtol=1e-12)
+        posterior = np.asarray(_target_marginals(masked_p, masked))  # (T, P, P + 2 + 1)
+        columns = np.concatenate([np.arange(3), 3 + keep, [5]])
+        np.testing.assert_allclose(posterior[..., columns], np.asarray(_target_marginals(removed_p, smaller)),
+                                   atol=1e-12)
+        assert np.all(posterior[..., 3 + np.flatnonzero(~np.asarray(active))] == 0.0)
+    # the slot matters: removing it changes the likelihood
+    full = np.asarray(_marginal_log_likelihood(jax.tree_util.tree_map(jnp.asarray, params), arrays)).sum()
+    assert abs(full - expected.sum()) > 0.1
+
+
+def test_masked_slots_leave_the_values_and_the_inverse_hessian():
+    """``_drop_masked``: a masked slot's offsets and drift, their rows and columns of the inverse Hessian (in
+    ``jax.tree_util``'s order, the mass matrix's) and its centre go; ``α_object`` too when no slot is left."""
+    W, K = 2, 3
+    values = {"bias": jnp.zeros((2, 2)), "alpha_object": jnp.zeros(()), "concurrence_offset": jnp.zeros((K, 3)),
+              "concurrence_drift": jnp.zeros((W, K, 3)), "stay": jnp.zeros(())}
+    flat, unravel = ravel_pytree(values)
+    named = unravel(jnp.arange(flat.size, dtype=flat.dtype))  # each entry's index in the flat order
+    inverse = np.arange(flat.size)[:, None] * 1000.0 + np.arange(flat.size)[None, :]
+    arrays = ModelArrays(*([jnp.zeros(1)] * 9), jnp.arange(W * K * 3.0).reshape(W, K, 3), jnp.zeros(1),
+                               jnp.zeros(1), jnp.zeros(0, jnp.int32), jnp.asarray([True, False, True]))
+    kept, smaller, kept_inverse = _drop_masked(named, arrays, inverse)
+    rows = np.concatenate([np.ravel(kept[k]) for k in sorted(kept)]).astype(int)
+    np.testing.assert_array_equal(np.asarray(kept_inverse), inverse[np.ix_(rows, rows)])
+    np.testing.assert_array_equal(np.asarray(kept["concurrence_offset"]), np.asarray(named["concurrence_offset"])[[0, 2]])
+    np.testing.assert_array_equal(np.asarray(kept["concurrence_drift"]), np.asarray(named["concurrence_drift"])[:, [0, 2]])
+    np.testing.assert_array_equal(np.asarray(smaller.location_centres), np.asarray(arrays.location_centres)[:, [0, 2]])
+    assert np.asarray(smaller.slot_active).tolist() == [True, True] and kept_inverse.shape == (rows.size, rows.size)
+    none, empty, _ = _drop_masked(named, arrays._replace(slot_active=jnp.zeros(K, bool)), inverse)
+    assert sorted(none) == ["bias", "stay"] and empty.location_centres.shape == (W, 0, 3)
