@@ -357,15 +357,14 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
     evidence counts the extra slot's volume against the little it explains: one slot
     is dropped at a time, the one whose removal raises the evidence most, each removal
     refined from the current mode (:func:`_to_mode`). Returns the values and the arrays (the dropped slots masked,
-    :func:`_without_concurrence`), the slots kept (indices into the start's) and the kept mode's
-    ``(evidence, inverse Hessian)`` (for :func:`_search_modes`).
+    :func:`_without_concurrence`) and the kept mode's ``(evidence, inverse Hessian)`` (for :func:`_search_modes`).
 
     :func:`fit_joint` prunes with the model without a fixation's spot, whose choice follows
     (:func:`_choose_spot`): a BFGS program and a Hessian of the spot's model per concurrence count
     cost 26 s of a 106-s first fit (``bench_joint``), and a spot's offsets lie within the cone of
     a target, not between targets, so they do not bear on how many targets there are.
     """
-    kept = list(range(arrays.location_centres.shape[1]))
+    kept = [int(k) for k in np.flatnonzero(np.asarray(slot_mask(arrays)))]  # the twins are masked already
     scored = _laplace_evidence(unconstrained, arrays, prior)
     with progress_bar(progress, desc="joint concurrences") as bar:
         while kept:
@@ -382,7 +381,7 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
                 break
             scored, k, unconstrained, arrays = best
             del kept[k]
-    return unconstrained, arrays, kept, scored
+    return unconstrained, arrays, scored
 
 
 def _choose_shape(linear_mode: dict, shape_start: dict, arrays: ModelArrays, prior: JointPrior, scored):
@@ -914,21 +913,17 @@ def fit_joint(
     # a fixation's spot and a GP head–gaze map are weighed after the pruning (_choose_shape, _choose_spot)
     plain = prior._replace(held_scale=None, coupling_shape_scale=None)
 
-    def refined(start):
-        arrays = _arrays(data, start.concurrence_centres, dtype)
-        values = _unconstrained(_start_values(start, plain, data.num_people))
-        return arrays, _refine_start({k: jnp.asarray(v, dtype) for k, v in values.items()}, arrays, plain, at_mode)
-
-    arrays, unconstrained = refined(start)
+    arrays = _arrays(data, start.concurrence_centres, dtype)
+    values = {k: jnp.asarray(v, dtype) for k, v in _unconstrained(_start_values(start, plain, data.num_people)).items()}
+    unconstrained = _refine_start(values, arrays, plain, at_mode)
     twins = _twin_concurrences(unconstrained, start.concurrence_centres, prior)
-    if twins:
-        keep = [k for k in range(start.num_concurrences) if k not in twins]
-        start = start._replace(concurrence_centres=start.concurrence_centres[:, keep],
-                               concurrence_support=start.concurrence_support[keep])
-        arrays, unconstrained = refined(start)
+    if twins:  # masked as the pruning masks (_without_concurrence), so that the second refinement shares the programs
+        for k in twins:
+            values, arrays = _without_concurrence(values, arrays, k)
+        unconstrained = _refine_start(values, arrays, plain, at_mode)
     search, scored, spot_factor, shape_factor = None, None, None, None
     if at_mode:  # the slots dropped stay masked, so that what follows shares the pruning's programs
-        unconstrained, arrays, kept, scored = _prune_concurrences(unconstrained, arrays, plain, progress)
+        unconstrained, arrays, scored = _prune_concurrences(unconstrained, arrays, plain, progress)
     shape_scale, prior = prior.coupling_shape_scale, prior._replace(coupling_shape_scale=None)
     if prior.held_scale is not None and at_mode:
         prior, unconstrained, spot_factor = _choose_spot(unconstrained, arrays, prior)
@@ -947,11 +942,14 @@ def fit_joint(
     widening = None  # head pose only: the couplings' intervals for errors correlated over seconds
     if at_mode and data.head_motion is not None:
         widening = _coupling_widening(unconstrained, inverse_hessian, arrays, prior, data.fps)
-    if at_mode:
+    kept = np.flatnonzero(np.asarray(slot_mask(arrays)))  # the twins and the pruning masked the others
+    if search is not None:
         search, inverse_hessian, arrays = _drop_masked_slots(search, inverse_hessian, arrays)
         unconstrained = search.start
-        start = start._replace(concurrence_centres=start.concurrence_centres[:, kept],
-                               concurrence_support=start.concurrence_support[kept])
+    else:
+        unconstrained, arrays, _ = _drop_masked(unconstrained, arrays)
+    start = start._replace(concurrence_centres=start.concurrence_centres[:, kept],
+                           concurrence_support=start.concurrence_support[kept])
     K = start.num_concurrences
     if method == "nuts":
         modes = [(unconstrained, inverse_hessian if at_mode else None)] + list(search.alternative_starts if search else ())
