@@ -337,10 +337,11 @@ def _drop_masked(values: dict, arrays: ModelArrays, inverse=None):
 def _drop_masked_slots(search, inverse, arrays: ModelArrays):
     """The search's modes (:func:`_search_modes`), the chosen mode's inverse Hessian and ``arrays`` without the slots
     the pruning masked: NUTS and SVI sample only the concurrences kept."""
-    if np.asarray(slot_mask(arrays)).all():
+    active = np.asarray(slot_mask(arrays))
+    if active.all():
         return search, inverse, arrays
-    P, K = arrays.present.shape[1], arrays.location_centres.shape[1]
-    columns = np.concatenate([np.arange(P), P + np.flatnonzero(np.asarray(slot_mask(arrays))), [P + K]])
+    P, K = arrays.present.shape[1], active.size
+    columns = np.concatenate([np.arange(P), P + np.flatnonzero(active), [P + K]])
     start, smaller, inverse = _drop_masked(search.start, arrays, inverse)
     starts = tuple(_drop_masked(values, arrays, mass)[::2] for values, mass in search.alternative_starts)
     alternatives = tuple(a._replace(membership=a.membership[:, columns]) for a in search.alternatives)
