@@ -197,3 +197,31 @@ def test_twin_concurrences_are_found_in_every_window():
                                                                                          0.02, 0]]))
     assert _twin_concurrences(moved, centres, prior) == [3]
     assert _twin_concurrences({"bias": np.zeros((3, 2))}, centres[:, :0], prior) == []
+
+
+def test_held_entries_of_a_descent_stay_and_the_rest_reach_the_conditional_mode(x64):
+    """``_descend`` with entries held is the descent of the model conditioned on them, in the same program as the free
+    descent: a correlated Gaussian potential, whose mode given the held entries is ``b_f − A_ff⁻¹ A_fh (y_h − b_h)``."""
+    import jax.numpy as jnp
+    import numpyro
+    import numpyro.distributions as dist
+
+    from jaxgaze.joint.infer import _descend
+
+    A = jnp.array([[2.0, 0.6, 0.3, -0.4], [0.6, 1.5, 0.2, 0.5], [0.3, 0.2, 1.0, 0.1], [-0.4, 0.5, 0.1, 3.0]])
+    centre = jnp.array([0.5, -1.0, 2.0, 0.3])
+
+    def model(A, centre):
+        x = numpyro.sample("x", dist.ImproperUniform(dist.constraints.real, (), (2,)))
+        y = numpyro.sample("y", dist.ImproperUniform(dist.constraints.real, (), (2,)))
+        z = jnp.concatenate([x, y]) - centre
+        numpyro.factor("quadratic", -0.5 * z @ A @ z)
+
+    start = {"x": jnp.array([3.0, 3.0]), "y": jnp.array([-1.0, 4.0])}
+    free = _descend(model, start, (A, centre), {"x": jnp.zeros(2, bool), "y": jnp.zeros(2, bool)})
+    np.testing.assert_allclose(np.concatenate([free["x"], free["y"]]), centre, atol=1e-8)
+    held = _descend(model, start, (A, centre), {"x": jnp.zeros(2, bool), "y": jnp.array([True, False])})
+    assert float(held["y"][0]) == -1.0  # exactly where it was
+    f, h = np.array([0, 1, 3]), np.array([2])
+    conditional = centre[f] - np.linalg.solve(A[np.ix_(f, f)], A[np.ix_(f, h)] @ (np.array([-1.0]) - centre[h]))
+    np.testing.assert_allclose([*held["x"], held["y"][1]], conditional, atol=1e-5)  # BFGS's rtol 1e-6
