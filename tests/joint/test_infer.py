@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
+import numpyro
+import numpyro.distributions as dist
 import pytest
 
 from jaxgaze.joint import (JointPosterior, expected_calibration_error, fit_joint, joint_data, nearest_target,
                            ray_intersection, reliability_curve)
+from jaxgaze.joint.infer import _descend
 from jaxgaze.joint.init import corrected_rays
 from jaxgaze.results import RESULTS, FitError, succeeded
 from tests.helpers import conversation
@@ -202,12 +206,6 @@ def test_twin_concurrences_are_found_in_every_window():
 def test_held_entries_of_a_descent_stay_and_the_rest_reach_the_conditional_mode(x64):
     """``_descend`` with entries held is the descent of the model conditioned on them, in the same program as the free
     descent: a correlated Gaussian potential, whose mode given the held entries is ``b_f − A_ff⁻¹ A_fh (y_h − b_h)``."""
-    import jax.numpy as jnp
-    import numpyro
-    import numpyro.distributions as dist
-
-    from jaxgaze.joint.infer import _descend
-
     A = jnp.array([[2.0, 0.6, 0.3, -0.4], [0.6, 1.5, 0.2, 0.5], [0.3, 0.2, 1.0, 0.1], [-0.4, 0.5, 0.1, 3.0]])
     centre = jnp.array([0.5, -1.0, 2.0, 0.3])
 
