@@ -8,8 +8,6 @@ NUTS posteriors, coverage studies): under 5 minutes on 2 cores, for everyday wor
 import gc
 import os
 import pathlib
-import shutil
-import tempfile
 
 import jax
 import pytest
@@ -199,32 +197,11 @@ def pytest_collection_modifyitems(config, items):
         order[item.nodeid] = (rank.get(relative, len(HEAVY_FILES)), index)
     items.sort(key=lambda item: order[item.nodeid])
 
-#: The environment variable of the run's own compilation cache (:func:`pytest_configure`).
-_RUN_CACHE = "JAXGAZE_TEST_RUN_CACHE"
-
-
-def pytest_configure(config):
-    """One persistent compilation cache for the whole run, empty at its start (as on a fresh CI machine): the
-    workers, and the commands, notebooks and README blocks they start, read back what another process compiled.
-
-    The suite is mostly compilation (a joint fit's first call is 89% of it, ``benchmarks/RESULTS.md``), and the
-    processes compile many of the same programs: the conversations of ``tests/helpers.py``, the examples' files.
-    Entries are written whole or not at all (:mod:`jaxgaze.runtime`), so a worker never reads one half-written. The
-    folder is made by the first process of the run (the controller, or the only process without workers) and
-    handed down through the environment, ``JAXGAZE_CACHE_DIR`` among it, which ``import jaxgaze`` reads; the
-    tests of the cache itself (tests/test_runtime.py, tests/faults/test_cache.py) name their own folders.
-    """
-    if _RUN_CACHE not in os.environ:
-        os.environ[_RUN_CACHE] = tempfile.mkdtemp(prefix="jaxgaze-test-xla-")
-        config._jaxgaze_run_cache = os.environ[_RUN_CACHE]
-    os.environ["JAXGAZE_CACHE_DIR"] = os.environ[_RUN_CACHE]
-
-
-def pytest_unconfigure(config):
-    """The run's compilation cache goes with the run (by the process that made it)."""
-    made = getattr(config, "_jaxgaze_run_cache", None)
-    if made is not None:
-        shutil.rmtree(made, ignore_errors=True)
+# No persistent compilation cache inside the test processes (``import jaxgaze`` would turn it on): a
+# worker compiles what it runs, as it did before issue 34, and never loads programs another worker
+# is writing. The commands the tests start as subprocesses keep it (the environment is untouched),
+# and tests/test_runtime.py and tests/faults/test_cache.py check the cache in fresh processes.
+jax.config.update("jax_enable_compilation_cache", False)
 
 
 @pytest.fixture

@@ -9,8 +9,8 @@ imports and runs in a fresh interpreter; each shell line runs in ``bash``. ``pip
 the package) and ``pytest`` (the suite that runs this test) are the only commands not run, listed in
 ``NOT_RUN_COMMANDS``; what follows their ``&&`` runs. A block preceded by ``<!-- not run: REASON -->`` only
 illustrates an optional extra: it is compiled (Python) or syntax-checked (bash), and the list of such blocks is
-pinned in ``NOT_RUN_BLOCKS``. The processes share the run's JAX compilation cache (speed only: a program compiled
-by one block, or by a test, is read back by a later one; tests/conftest.py). To stay within CI's time, a shell line that both documents show
+pinned in ``NOT_RUN_BLOCKS``. The processes share one JAX compilation cache (speed only: a program compiled
+by one block is read back by a later one). To stay within CI's time, a shell line that both documents show
 word for word, and that reads nothing an earlier line wrote, runs once: the second time its output files are
 copied from the first run (which passed), as the same command on the same files would write them.
 """
@@ -86,12 +86,14 @@ def shell_commands(text: str) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def environment():
+def environment(tmp_path_factory):
     """The environment of a reader's shell: this interpreter's ``jaxgaze`` and ``python`` first on PATH,
-    the run's compilation cache (``JAXGAZE_CACHE_DIR``, tests/conftest.py), figures without a display."""
+    one compilation cache for this module's processes, figures without a display."""
     env = dict(os.environ)
     env["PATH"] = os.pathsep.join([str(pathlib.Path(sys.executable).parent), env.get("PATH", "")])
-    env.update(MPLBACKEND="Agg", PYTHONUNBUFFERED="1")
+    cache = str(tmp_path_factory.mktemp("jax_cache"))
+    env.update(JAXGAZE_CACHE_DIR=cache, JAX_COMPILATION_CACHE_DIR=cache, JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
+               JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0", MPLBACKEND="Agg", PYTHONUNBUFFERED="1")
     return env
 
 
