@@ -19,6 +19,7 @@ Usage::
 
     python experiments/joint_head_only.py [--scenes 30] [--people 3 8] [--duration 60] [--warmup 300]
         [--draws 300] [--seed 38] [--compare] [--no-spot] [--coupling-shape RADIANS] [--head-turn-limit DEG]
+        [--tracker-tilt-factor F] [--isotropic]
         [--cache out.json] [--part I/N]
 """
 
@@ -85,6 +86,8 @@ def evaluate_scene(key, people, duration_s, warmup, draws, compare, prior=JointP
            "kappa_error": (kappa.mean(0) - truth).ravel().tolist(),
            "kappa_cover": ((truth >= lo) & (truth <= hi)).ravel().tolist(),
            "lag": np.asarray(post.samples["head_lag"]).mean(0).tolist(),
+           "tilt_width_ratio": (float(np.mean(post.samples["tilt_width_ratio"]))
+                                if "tilt_width_ratio" in post.samples else None),
            "bias_error_deg": error_deg.tolist(), "bias_cover": ((b_lo <= 0) & (b_hi >= 0)).ravel().tolist(),
            "confidently_wrong": confidently_wrong(result, error_deg, distance_sd(post.samples["bias"], bias))}
     if compare:
@@ -143,6 +146,10 @@ def main() -> None:
                         help="a non-linear head-gaze map: JointPrior(coupling_shape_scale=RADIANS)")
     parser.add_argument("--head-turn-limit", type=float, default=0.0, metavar="DEG",
                         help="simulated heads whose turn saturates, L tanh(kappa theta / L) (0: linear)")
+    parser.add_argument("--tracker-tilt-factor", type=float, default=1.0, metavar="F",
+                        help="simulated head trackers whose pitch error is F times their yaw error (1: the same)")
+    parser.add_argument("--isotropic", action="store_true", help="the model whose gaze scatters as widely in tilt as "
+                        "in yaw (JointPrior(tilt_width_ratio_log_sd=None))")
     parser.add_argument("--cache", action="append", default=[], help="JSON file(s) of per-scene results (resumes; "
                         "the last one is written)")
     parser.add_argument("--part", default="0/1", help="I/N: only the scenes whose index is I modulo N")
@@ -154,7 +161,10 @@ def main() -> None:
         if str(i) in done or i % parts != part:
             continue
         prior = (NO_SPOT if args.no_spot else JointPrior())._replace(coupling_shape_scale=args.coupling_shape)
-        config = ConversationConfig()._replace(head_turn_limit_deg=args.head_turn_limit)
+        if args.isotropic:
+            prior = prior._replace(tilt_width_ratio_log_sd=None)
+        config = ConversationConfig()._replace(head_turn_limit_deg=args.head_turn_limit,
+                                               tracker_tilt_factor=args.tracker_tilt_factor)
         done[str(i)] = evaluate_scene(keys[i], args.people, args.duration, args.warmup, args.draws, args.compare,
                                       prior, config)
         r = done[str(i)]

@@ -49,4 +49,13 @@ def _coupling(posterior) -> list[str]:
     return shape + ["head-gaze coupling (share of the gaze's turn the head makes; yaw, tilt; 90% interval): " + "; ".join(
         f"{n} {k[0]:.2f} ({i[0, 0]:.2f}-{i[0, 1]:.2f}), {k[1]:.2f} ({i[1, 0]:.2f}-{i[1, 1]:.2f})"
         for n, k, i in zip(posterior.people, kappa, low_high)),
-        "head lag s: " + "; ".join(f"{n} {t:.2f}" for n, t in zip(posterior.people, lag))]
+        "head lag s: " + "; ".join(f"{n} {t:.2f}" for n, t in zip(posterior.people, lag))] + _tilt_width(posterior)
+
+
+def _tilt_width(posterior) -> list[str]:
+    """Head pose only: how much wider the gaze scatters in tilt than in yaw (a tracker reading pitch worse)."""
+    if "tilt_width_ratio" not in posterior.samples:
+        return []
+    low, high = posterior.interval("tilt_width_ratio")
+    return [f"tilt scatter / yaw scatter: {np.mean(posterior.samples['tilt_width_ratio']):.2f} "
+            f"(90% interval {low:.2f}-{high:.2f})"]

@@ -336,7 +336,7 @@ NETCDF_UNITS = {"bias": "rad", "cone_width": "rad", "alpha_person": "1", "alpha_
                 "stay": "1", "concurrence_offset": "1", "concurrence_drift": "1", "concurrence_locations": "m",
                 "eye_offset": "m", "calibration_outlier_share": "1", "gaze_angles": "rad", "present": "1",
                 "speaking": "1", "diverging": "1", "acceptance_rate": "1", "n_steps": "1", "lp": "1",
-                "coupling": "1", "head_lag": "s", "held_spread": "1", "held_cone_share": "1", "head_motion": "rad, rad, rad/s, rad/s, 1/s (see coordinate motion)"}
+                "coupling": "1", "head_lag": "s", "tilt_width_ratio": "1", "held_spread": "1", "held_cone_share": "1", "head_motion": "rad, rad, rad/s, rad/s, 1/s (see coordinate motion)"}
 
 
 def write_joint_netcdf(path, posterior) -> str:

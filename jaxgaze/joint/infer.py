@@ -49,7 +49,8 @@ __all__ = ["JointPosterior", "SVIDiagnostics", "fit_joint", "mean_field_guide", 
 #: Inference methods of :func:`fit_joint`.
 METHODS = ("nuts", "svi")
 _SUMMARY_SITES = ("bias", "cone_width", "alpha_person", "alpha_object", "speaker_effect", "stay",
-                  "concurrence_locations", "eye_offset", "coupling", "head_lag", "held_cone_share", "coupling_shape")
+                  "concurrence_locations", "eye_offset", "coupling", "head_lag", "tilt_width_ratio", "held_cone_share",
+                  "coupling_shape")
 #: Draws used for the membership probabilities and the predictive check.
 _MAX_PROBABILITY_DRAWS = 200
 #: Two free concurrences closer than this (metres) in every window after the start's refinement are one
@@ -102,6 +103,8 @@ def _start_values(start: JointStart, prior: JointPrior, num_people: int) -> dict
     if start.coupling is not None:
         values["coupling"] = np.asarray(start.coupling, float)
         values["head_lag"] = np.asarray(start.head_lag, float)
+        if prior.tilt_width_ratio_log_sd is not None:
+            values["tilt_width_ratio"] = np.asarray(1.0)
         if prior.coupling_shape_scale is not None:
             values["coupling_shape"] = np.zeros(np.shape(start.coupling) + (COUPLING_SHAPE_BASIS,))
     if start.eye_offset.shape[0]:

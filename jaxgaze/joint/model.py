@@ -54,7 +54,12 @@ angles, so each observed frame adds the log Jacobian of the map from head to gaz
 ``Σ_axes log((1 + τ·fps) / κ)`` (``log(1/κ)`` after a gap: no rate there); without
 it a head that turns fully (``κ → 1``) looks best, as it packs the gazes tightest.
 ``κ`` (per person and axis) and ``τ`` (per person) are inferred with the rest; a head
-tracker's per-frame sd ``σ`` enters the width as ``σ / κ``. With
+tracker's per-frame sd ``σ`` enters the width as ``σ / κ``. The gaze scatters ``r`` times as
+widely in tilt as in yaw (``JointPrior.tilt_width_ratio_log_sd``; one ``r`` for the recording):
+the residuals' tilt is divided by ``r`` and each observed frame adds ``−log r``. Face trackers read
+pitch worse than yaw; with one width for both axes the tilt couplings took up the difference (a
+pitch error 2.5 times the yaw's sent ``κ_tilt`` 0.2–0.5 too high, 60 standard deviations from the truth,
+``benchmarks/RESULTS.md``). With
 ``JointPrior.coupling_shape_scale`` the map from head to gaze is the linear one plus a
 Gaussian process per person and axis (Yücel et al. 2013's regression as a latent function,
 :func:`coupling_shape`), for heads whose turn is not proportional to the gaze's.
@@ -86,7 +91,7 @@ __all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "head_gaz
            "marginal_log_likelihood", "target_marginals", "target_log_prior", "model_params", "concurrence_locations", "eye_positions"]
 
 #: The model's sites on the positive half-line and in (0, 1): numpyro samples them as logs and logits.
-POSITIVE_SITES = ("cone_width", "head_lag")
+POSITIVE_SITES = ("cone_width", "head_lag", "tilt_width_ratio")
 UNIT_SITES = ("stay", "calibration_outlier_share", "coupling")
 #: The largest share ``c`` of the cone's variance a fixation's spot may hold (:func:`held_cone_share`):
 #: with ``c → 1`` and ``ρ → 1`` a block is one fixation whose spot may lie anywhere, only its first frame pays for the
@@ -150,6 +155,9 @@ class JointPrior(NamedTuple):
             saturating one. There it raised the gazes at a person got right on two (0.78 → 0.95, 0.81 → 0.89)
             and lowered them on one (0.996 → 0.940), at 7–12 times the linear fit's time
             (``benchmarks/RESULTS.md``). ``None`` (the default): the map is linear.
+        tilt_width_ratio_log_sd: head pose only: the sd of ``log r``, ``r`` the ratio of the gaze's scatter in tilt to
+            its scatter in yaw (one for the recording: the tracker reads every head), log-normal around 1.
+            ``None``: the same scatter on both axes (``r = 1``).
     """
 
     bias_scale: float = 0.25
@@ -167,6 +175,7 @@ class JointPrior(NamedTuple):
     head_lag_scale: float = 0.4
     held_scale: float | None = 1.0
     coupling_shape_scale: float | None = None
+    tilt_width_ratio_log_sd: float | None = 0.5
 
 
 class ModelArrays(NamedTuple):
@@ -214,7 +223,7 @@ def model_params(values: dict, centres: Float[Array, "W K 3"], prior: JointPrior
     """The parameters the likelihood reads, from the latent sites' constrained values (one draw, or a mode):
     locations from the concurrence offsets (:func:`concurrence_locations`), ``α_object = 0`` without concurrences."""
     p = {k: values[k] for k in ("bias", "cone_width", "alpha_person", "speaker_effect", "stay")}
-    p.update({k: values[k] for k in ("coupling", "head_lag") if k in values})
+    p.update({k: values[k] for k in ("coupling", "head_lag", "tilt_width_ratio") if k in values})
     if "coupling_shape" in values:
         p["coupling_shape"] = values["coupling_shape"] * coupling_shape_spectrum(prior.coupling_shape_scale,
                                                                                  values["coupling_shape"].dtype)
@@ -294,8 +303,11 @@ def head_log_jacobian(head_motion: Float[Array, "T P 5"], coupling: Float[Array,
 
 
 def _jacobian(params: dict, head_motion) -> Float[Array, "T P"]:
-    """:func:`head_log_jacobian` of the parameters (head pose only)."""
-    return head_log_jacobian(head_motion, params["coupling"], params["head_lag"], params.get("coupling_shape"))
+    """:func:`head_log_jacobian` of the parameters (head pose only), and ``−log r`` of the tilt's width ratio."""
+    jacobian = head_log_jacobian(head_motion, params["coupling"], params["head_lag"], params.get("coupling_shape"))
+    if "tilt_width_ratio" in params:
+        jacobian = jacobian - jnp.log(params["tilt_width_ratio"])
+    return jacobian
 
 
 def gaze_angles(params: dict, arrays: ModelArrays) -> Float[Array, "T P 2"]:
@@ -332,7 +344,8 @@ def _parts(params: dict, arrays: ModelArrays, prior: JointPrior):
     locations = params["locations"]
     if arrays.head_motion.shape[-1]:
         return (people_logit, others) + _head_only_terms(gaze + params["bias"], to_people_head, eyes, R, locations,
-                                                         window, width, arrays.head_motion, prior)
+                                                         window, width, arrays.head_motion, prior,
+                                                         params.get("tilt_width_ratio"))
     directions_head = gaze_angles_to_direction(gaze + params["bias"])  # (T, P, 3)
     people_lik = cone_direction_log_density(jnp.einsum("tik,tijk->tij", directions_head, to_people_head), width)
     directions = head_to_world(directions_head, R)  # (T, P, 3), world frame
@@ -374,7 +387,8 @@ def _angle_log_density(residual, width):
     return -0.5 * square / jnp.square(width) - jnp.log(2.0 * math.pi * jnp.square(width))
 
 
-def _head_only_terms(gaze, people_angles, eyes, R, locations, window, width, head_motion, prior: JointPrior):
+def _head_only_terms(gaze, people_angles, eyes, R, locations, window, width, head_motion, prior: JointPrior,
+                     tilt_ratio=None):
     """The likelihoods of head pose only, on the plane of world angles (azimuth about the world's +z, elevation).
 
     ``gaze`` ``(T, P, 2)`` is ``g + b``, the gaze's azimuth and elevation minus the head's,
@@ -388,15 +402,19 @@ def _head_only_terms(gaze, people_angles, eyes, R, locations, window, width, hea
     :func:`people_head_angles`). Returns the people's, the concurrences' and elsewhere's log likelihoods, the world
     gaze angles from the head's mean direction ``(T, P, 2)`` that a held glance elsewhere is scored by,
     the widths, and the residuals from the people and concurrences, yaw and tilt apart (two ``(T, P, P + K)``).
+    With ``tilt_ratio`` ``r``, every tilt (residuals, the gaze elsewhere and the held glances' world angles) is
+    divided by ``r``: on that plane the scatter is the same on both axes, and :func:`_jacobian` adds the change of
+    variable's ``−log r`` to each observed frame.
     """
     T, P = gaze.shape[:2]
+    shrink = jnp.ones((), gaze.dtype) if tilt_ratio is None else 1.0 / tilt_ratio
     # components apart, (yaw, tilt) each (T, P, C): the gradient's sums over the candidates are then over the last
     # axis (XLA:CPU summed over the middle axis of (T, P, C, 2) at a fifth of a gradient's time)
     apart = lambda a: (a[..., 0], a[..., 1])  # noqa: E731
     gaze_yaw, gaze_tilt = (g[:, :, None] for g in apart(gaze))
 
     def people(gaze_yaw, gaze_tilt, target_yaw, target_tilt, width):
-        residual = (gaze_yaw - target_yaw, gaze_tilt - target_tilt)
+        residual = (gaze_yaw - target_yaw, (gaze_tilt - target_tilt) * shrink)
         return residual + (_angle_log_density(residual, width),)
 
     *residuals, people_lik = _on_rows(people, gaze_yaw, gaze_tilt, *apart(people_angles), width)  # (T, gazer, target)
@@ -406,7 +424,7 @@ def _head_only_terms(gaze, people_angles, eyes, R, locations, window, width, hea
 
         def slots(gaze_yaw, gaze_tilt, x, y, z, head_yaw, head_tilt, width):
             yaw, tilt = _from_head(jnp.stack([x, y, z], axis=-1), head_yaw, head_tilt)
-            residual = (gaze_yaw - yaw, gaze_tilt - tilt)
+            residual = (gaze_yaw - yaw, (gaze_tilt - tilt) * shrink)
             return residual + (_angle_log_density(residual, width),)
 
         toward = locations[window][:, None] - eyes[:, :, None]  # (T, P, K, 3)
@@ -415,9 +433,12 @@ def _head_only_terms(gaze, people_angles, eyes, R, locations, window, width, hea
         residuals.append(slot_residuals)
     else:
         slot_lik = jnp.zeros((T, P, 0), gaze.dtype)
-    elsewhere = _angle_log_density(gaze, jnp.asarray(prior.elsewhere_spread, gaze.dtype))
+    scaled = jnp.stack([gaze[..., 0], gaze[..., 1] * shrink], axis=-1)
+    elsewhere = _angle_log_density(scaled, jnp.asarray(prior.elsewhere_spread, gaze.dtype))
     residuals = tuple(jnp.concatenate(parts, axis=2) for parts in zip(*residuals))
-    return people_lik, slot_lik, elsewhere, head_motion[..., :2] + gaze, width[..., 0], residuals
+    world = head_motion[..., :2] + gaze
+    world = jnp.stack([world[..., 0], world[..., 1] * shrink], axis=-1)
+    return people_lik, slot_lik, elsewhere, world, width[..., 0], residuals
 
 
 def _log_normaliser(people_logit, slot_active, alpha_object):
@@ -817,6 +838,9 @@ def joint_model(
             *(jnp.full((P, 2), c, dtype) for c in prior.coupling_concentration)).to_event(2))
         params["head_lag"] = numpyro.sample("head_lag", dist.HalfNormal(
             jnp.full((P,), prior.head_lag_scale, dtype)).to_event(1))
+        if prior.tilt_width_ratio_log_sd is not None:
+            params["tilt_width_ratio"] = numpyro.sample("tilt_width_ratio", dist.LogNormal(
+                jnp.zeros((), dtype), prior.tilt_width_ratio_log_sd))
         if prior.coupling_shape_scale is not None:
             weights = numpyro.sample("coupling_shape", dist.Normal(
                 jnp.zeros((P, 2, COUPLING_SHAPE_BASIS), dtype), 1.0).to_event(3))

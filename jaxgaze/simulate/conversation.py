@@ -72,7 +72,7 @@ Generative model, for one scene:
    The *reported* head pose is ``R_world_from_head = true_R · E`` with a
    tracker error ``E = R_z R_y R_x`` of smooth drift (up to
    ``tracker_drift_deg`` per axis) plus i.i.d. jitter ``N(0,
-   tracker_jitter_deg²)`` per axis and frame.
+   tracker_jitter_deg²)`` per axis and frame, the pitch's times ``tracker_tilt_factor``.
 7. **True gaze.** ``v* = exp_u(δ)``: the unit direction ``u`` from the eye to
    the target point, rotated on its tangent plane by ``δ = h z₁ + s z₂``,
    ``z₁, z₂ ~ N(0, I₂)`` i.i.d. per frame (Park's cone, and the estimator's
@@ -215,6 +215,8 @@ class ConversationConfig(NamedTuple):
         head_roll_deg: amplitude of the smooth head roll.
         tracker_drift_deg: amplitude of the smooth head-tracker error, per axis.
         tracker_jitter_deg: sd of the i.i.d. head-tracker error, per axis and frame.
+        tracker_tilt_factor: the tracker's pitch error (drift and jitter) is this many times its yaw and roll
+            error: face trackers read pitch worse than yaw. 1: the same on every axis.
         measurement_scale_deg: range of the per-frame measurement noise sd ``s``.
         dropout_fraction: expected fraction of frames lost to tracker dropouts.
         head_turn_limit_deg: ``0``: the head turns ``κ`` of the line of sight (linear); ``L > 0``: the
@@ -269,6 +271,7 @@ class ConversationConfig(NamedTuple):
     head_roll_deg: float = 2.0
     tracker_drift_deg: float = 2.0
     tracker_jitter_deg: float = 0.5
+    tracker_tilt_factor: float = 1.0
     measurement_scale_deg: tuple[float, float] = (0.5, 3.0)
     dropout_fraction: float = 0.025
     head_turn_limit_deg: float = 0.0
@@ -436,6 +439,7 @@ def _check_config(config: ConversationConfig) -> ConversationConfig:
     c["head_lag_s"] = check_number("head_lag_s", config.head_lag_s, lo=0.0, hi=5.0)
     for name in ("head_sway_deg", "head_roll_deg", "tracker_drift_deg", "tracker_jitter_deg"):
         c[name] = check_number(name, getattr(config, name), lo=0.0, hi=30.0)
+    c["tracker_tilt_factor"] = check_number("tracker_tilt_factor", config.tracker_tilt_factor, lo=0.0, hi=10.0)
     c["measurement_scale_deg"] = check_pair("measurement_scale_deg", config.measurement_scale_deg, lo=0.0, hi=45.0)
     c["dropout_fraction"] = check_number("dropout_fraction", config.dropout_fraction, lo=0.0, hi=0.5)
     c["head_turn_limit_deg"] = check_number("head_turn_limit_deg", config.head_turn_limit_deg, lo=0.0, hi=180.0)
@@ -837,6 +841,7 @@ def simulate_conversation(
     R_true = _head_pose_to_rotation(body_yaw + head[..., 0], head[..., 1], roll)
     err = config.tracker_drift_deg * deg * _smooth(rng, times, (P, 3), periods=(5.0, 30.0))
     err = err + config.tracker_jitter_deg * deg * rng.standard_normal((T, P, 3))
+    err[..., 1] *= config.tracker_tilt_factor  # pitch read worse (or better) than yaw and roll
     R_rep = R_true @ _head_pose_to_rotation(err[..., 0], err[..., 1], err[..., 2])
 
     # 7. True gaze: the direction to the target rotated on its tangent plane by δ = h z₁ + s z₂.

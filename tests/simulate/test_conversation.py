@@ -186,6 +186,27 @@ def test_a_head_turn_limit_saturates_the_turn():
         simulate_conversation(jax.random.key(3), config=ConversationConfig()._replace(head_turn_limit_deg=-1.0))
 
 
+def test_the_trackers_tilt_factor_scales_its_pitch_error_only():
+    """``tracker_tilt_factor = f``: the tracker error ``E = true_Rᵀ R`` (``R_z(yaw) R_y(−pitch) R_x(roll)``) has ``f``
+    times the pitch of the default scene's, the same yaw and roll, and the true heads are the same."""
+    def errors(factor):
+        c = simulate_conversation(jax.random.key(4), num_people=4, duration_s=10.0,
+                                  config=ConversationConfig(tracker_tilt_factor=factor))
+        E = np.einsum("tpji,tpjk->tpik", c.true_R_world_from_head, c.R_world_from_head)
+        yaw, pitch = _direction_to_yaw_pitch(E[..., :, 0])
+        return c.true_R_world_from_head, yaw, pitch, np.arctan2(E[..., 2, 1], E[..., 2, 2])
+
+    true_1, yaw_1, pitch_1, roll_1 = errors(1.0)
+    true_3, yaw_3, pitch_3, roll_3 = errors(3.0)
+    np.testing.assert_array_equal(true_1, true_3)
+    np.testing.assert_allclose(pitch_3, 3.0 * pitch_1, atol=1e-9)
+    np.testing.assert_allclose(yaw_3, yaw_1, atol=1e-9)
+    np.testing.assert_allclose(roll_3, roll_1, atol=1e-9)
+    assert np.std(pitch_1) > math.radians(0.5)  # a tracker error to scale
+    with pytest.raises(ValueError, match="tracker_tilt_factor"):
+        simulate_conversation(jax.random.key(3), config=ConversationConfig(tracker_tilt_factor=-1.0))
+
+
 def test_targets_and_presence(scenes):
     for c in scenes:
         P, K = c.num_people, c.num_objects
