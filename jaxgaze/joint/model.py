@@ -433,12 +433,10 @@ def _head_only_terms(gaze, people_angles, eyes, R, locations, window, width, hea
         residuals.append(slot_residuals)
     else:
         slot_lik = jnp.zeros((T, P, 0), gaze.dtype)
-    scaled = jnp.stack([gaze[..., 0], gaze[..., 1] * shrink], axis=-1)
-    elsewhere = _angle_log_density(scaled, jnp.asarray(prior.elsewhere_spread, gaze.dtype))
+    axes = jnp.stack([jnp.ones_like(shrink), shrink])  # (yaw, tilt) onto the plane of equal scatter
+    elsewhere = _angle_log_density(gaze * axes, jnp.asarray(prior.elsewhere_spread, gaze.dtype))
     residuals = tuple(jnp.concatenate(parts, axis=2) for parts in zip(*residuals))
-    world = head_motion[..., :2] + gaze
-    world = jnp.stack([world[..., 0], world[..., 1] * shrink], axis=-1)
-    return people_lik, slot_lik, elsewhere, world, width[..., 0], residuals
+    return people_lik, slot_lik, elsewhere, (head_motion[..., :2] + gaze) * axes, width[..., 0], residuals
 
 
 def _log_normaliser(people_logit, slot_active, alpha_object):
