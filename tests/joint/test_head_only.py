@@ -61,7 +61,7 @@ def _from_head(v, R):
 
 
 def _log_normal2(r, w, ratio=1.0):
-    """``log N(r; 0, diag(w², (r w)²))``: a 2-D angle residual whose tilt scatters ``ratio`` times as wide."""
+    """``log N(r; 0, diag(w², (ratio · w)²))``: a 2-D angle residual whose tilt scatters ``ratio`` times as wide."""
     return -0.5 * (r[0] ** 2 + (r[1] / ratio) ** 2) / w**2 - math.log(2 * math.pi * w**2 * ratio)
 
 
@@ -482,7 +482,7 @@ def test_coupling_profile_peaks_near_each_persons_coupling(group):
 
 def test_a_tracker_reading_pitch_worse_leaves_the_tilt_couplings():
     """A head tracker whose pitch error is 2.5 times its yaw error (``tracker_tilt_factor``): the gaze scatters about
-    twice as wide in tilt (``tilt_width_ratio``), and every tilt coupling stays within 0.15 of the truth. With one
+    twice as wide in tilt (``tilt_width_ratio``), and every coupling, yaw and tilt, stays within 0.15 of the truth. With one
     width for both axes (``JointPrior(tilt_width_ratio_log_sd=None)``) the tilt couplings took up the wider scatter on
     this scene: 0.99 for truths of 0.67–0.74, their 90% intervals 0.03 wide (``benchmarks/RESULTS.md``)."""
     scene = simulate_conversation(jax.random.key(3), num_people=4, duration_s=40.0,
