@@ -20,6 +20,7 @@ so a hang fails the test instead of CI.
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -38,7 +39,11 @@ pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="the children ar
 FRAMES = 62
 DEADLINE_S = 300  # for all the children; a healthy run takes 20–40 s on two cores
 
-_CHILD = """
+# Every child dumps its threads' Python stacks on SIGUSR1, which the test sends before it kills a
+# child that missed the deadline, so that a hang says where it was.
+_DUMP_ON_SIGUSR1 = "import faulthandler, signal; faulthandler.register(signal.SIGUSR1, all_threads=True)\n"
+
+_CHILD = _DUMP_ON_SIGUSR1 + """
 import sys
 import jax
 import numpy as np
@@ -47,6 +52,7 @@ rays_file, out_file = sys.argv[1], sys.argv[2]
 if len(sys.argv) > 3:  # one of several processes: join them before any computation
     jax.distributed.initialize(coordinator_address=sys.argv[3], num_processes=int(sys.argv[4]),
                                process_id=int(sys.argv[5]), initialization_timeout=120)
+    print("joined", flush=True)  # where a hang was, with the stacks the test asks for
 
 import jaxgaze
 from jaxgaze.results import code
@@ -54,8 +60,10 @@ from jaxgaze.results import code
 saved = np.load(rays_file)
 rays = jaxgaze.GazeRays(saved["origins"], saved["directions"], saved["bandwidth"], saved["mask"])
 found = jaxgaze.find_concurrences_over_frames(rays)
+print("found", flush=True)
 np.savez(out_file, devices=jax.local_device_count(), processes=jax.process_count(),
          process=jax.process_index(), count=found.count, **found._replace(result=code(found.result))._asdict())
+print("saved", flush=True)
 """
 
 
@@ -63,6 +71,22 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def _answer(proc: subprocess.Popen, deadline: float) -> str | None:
+    """The child's log once it exits, or ``None`` (and the child killed) if it is still running at ``deadline``.
+
+    A child past the deadline is first asked for its stacks (SIGUSR1), which then end its log."""
+    try:
+        log, _ = proc.communicate(timeout=max(1.0, deadline - time.monotonic()))
+        return log
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGUSR1)
+        time.sleep(2.0)
+        proc.kill()
+        log, _ = proc.communicate()
+        print(f"--- {proc.args[-1]}: no answer by the deadline; its log ends ---\n{log[-6000:]}")
+        return None
 
 
 def _env(devices: int) -> dict:
@@ -94,12 +118,10 @@ def runs(tmp_path_factory):
         reference = find_concurrences_over_frames(rays)
         failed, deadline = {}, time.monotonic() + DEADLINE_S
         for name, proc in started.items():
-            try:
-                log, _ = proc.communicate(timeout=max(1.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                failed[name] = f"no answer within {DEADLINE_S} s (hung?)"
-                continue
-            if proc.returncode != 0:
+            log = _answer(proc, deadline)
+            if log is None:
+                failed[name] = f"no answer within {DEADLINE_S} s (hung?); its stacks are in the captured output"
+            elif proc.returncode != 0:
                 failed[name] = f"exit {proc.returncode}: {log[-2000:]}"
     finally:
         for proc in started.values():
@@ -167,7 +189,7 @@ def test_each_process_runs_a_contiguous_share_of_the_batches(monkeypatch):
 
 # The joint model's SVI: the frame axis of the model's arrays split over four forced devices.
 SVI_STEPS = 200
-_SVI_CHILD = """
+_SVI_CHILD = _DUMP_ON_SIGUSR1 + """
 import sys
 import jax
 import numpy as np
@@ -226,13 +248,13 @@ def test_four_devices_fit_the_joint_model_as_one_device(tmp_path):
                              str(tmp_path / "fits.npz"), str(SVI_STEPS)], env=_env(4),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        log, _ = proc.communicate(timeout=DEADLINE_S)
-    except subprocess.TimeoutExpired:
-        pytest.fail(f"no answer within {DEADLINE_S} s (hung?)")
+        log = _answer(proc, time.monotonic() + DEADLINE_S)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+    if log is None:
+        pytest.fail(f"no answer within {DEADLINE_S} s (hung?); its stacks are in the captured output")
     assert proc.returncode == 0, log[-2000:]
     fits = dict(np.load(tmp_path / "fits.npz"))
     assert int(fits["devices"]) == 4
