@@ -132,6 +132,18 @@ def runs(tmp_path_factory):
     return reference, {name: dict(np.load(folder / f"{name}.npz")) for name in started}
 
 
+def test_a_child_past_the_deadline_is_killed_with_its_stacks(capsys):
+    """The deadline's path: the child is killed, and its log, with where it was, is printed."""
+    proc = subprocess.Popen([sys.executable, "-c", _DUMP_ON_SIGUSR1 + "import time\nprint('joined', flush=True)\n"
+                             "def waiting():\n    time.sleep(600)\nwaiting()\n", "child"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    started = time.monotonic()
+    assert _answer(proc, started + 5.0) is None
+    assert proc.returncode == -signal.SIGKILL and time.monotonic() - started < 60
+    printed = capsys.readouterr().out
+    assert "child: no answer by the deadline" in printed and "joined" in printed and "in waiting" in printed
+
+
 def _assert_same_concurrences(found, reference, atol):
     np.testing.assert_array_equal(found["valid"], reference.valid)
     np.testing.assert_array_equal(found["count"], reference.count)
