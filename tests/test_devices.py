@@ -14,12 +14,16 @@ mutual gaze, and the same locations to within the mean-shift stopping step ``tol
 below which the search does not resolve a location anyway. Only float32 rounding differs:
 four devices run a program of 8 frames rather than 31 (20 µm apart at most, measured), and
 even the same program in another process differs by a few µm. Every child has a deadline,
-so a hang fails the test instead of CI.
+so a hang fails the test instead of CI, and dumps its stacks first. Each child runs in a session
+of its own and writes to a file: the two processes timed out together twice in the suite
+(stop 56 here and in CI), never alone; a full pipe read too late, or a signal sent to the
+tests' process group, can stall one while the other waits for it in a collective.
 """
 
 from __future__ import annotations
 
 import os
+import pathlib
 import signal
 import socket
 import subprocess
@@ -73,19 +77,30 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _start(argv: list[str], log: pathlib.Path, devices: int) -> subprocess.Popen:
+    """A child with ``devices`` CPU devices, in a session of its own (no signal sent to the tests' process group
+    reaches it), writing to the file ``log``. A file, not a pipe: a child whose pipe filled would wait for the test
+    to read it while the test waits for another child, which may be waiting for it in a collective."""
+    with open(log, "w") as out:
+        proc = subprocess.Popen(argv, env=_env(devices), stdin=subprocess.DEVNULL, stdout=out,
+                                stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    proc.log = log
+    return proc
+
+
 def _answer(proc: subprocess.Popen, deadline: float) -> str | None:
     """The child's log once it exits, or ``None`` (and the child killed) if it is still running at ``deadline``.
 
-    A child past the deadline is first asked for its stacks (SIGUSR1), which then end its log."""
+    A child past the deadline is first asked for its stacks (SIGUSR1), which then end its log, printed here."""
     try:
-        log, _ = proc.communicate(timeout=max(1.0, deadline - time.monotonic()))
-        return log
+        proc.wait(timeout=max(1.0, deadline - time.monotonic()))
+        return proc.log.read_text()
     except subprocess.TimeoutExpired:
         proc.send_signal(signal.SIGUSR1)
         time.sleep(2.0)
         proc.kill()
-        log, _ = proc.communicate()
-        print(f"--- {proc.args[-1]}: no answer by the deadline; its log ends ---\n{log[-6000:]}")
+        proc.wait()
+        print(f"--- {proc.log.stem}: no answer by the deadline; its log ends ---\n{proc.log.read_text()[-6000:]}")
         return None
 
 
@@ -107,10 +122,9 @@ def runs(tmp_path_factory):
     child = [sys.executable, str(folder / "child.py"), str(folder / "rays.npz")]
     address = f"127.0.0.1:{_free_port()}"
     started = {
-        "four_devices": subprocess.Popen(child + [str(folder / "four_devices.npz")], env=_env(4),
-                                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
-        **{f"process_{i}": subprocess.Popen(child + [str(folder / f"process_{i}.npz"), address, "2", str(i)],
-                                            env=_env(1), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        "four_devices": _start(child + [str(folder / "four_devices.npz")], folder / "four_devices.log", 4),
+        **{f"process_{i}": _start(child + [str(folder / f"process_{i}.npz"), address, "2", str(i)],
+                                  folder / f"process_{i}.log", 1)
            for i in range(2)},
     }
     try:
@@ -132,11 +146,10 @@ def runs(tmp_path_factory):
     return reference, {name: dict(np.load(folder / f"{name}.npz")) for name in started}
 
 
-def test_a_child_past_the_deadline_is_killed_with_its_stacks(capsys):
+def test_a_child_past_the_deadline_is_killed_with_its_stacks(tmp_path, capsys):
     """The deadline's path: the child is killed, and its log, with where it was, is printed."""
-    proc = subprocess.Popen([sys.executable, "-c", _DUMP_ON_SIGUSR1 + "import time\nprint('joined', flush=True)\n"
-                             "def waiting():\n    time.sleep(600)\nwaiting()\n", "child"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = _start([sys.executable, "-c", _DUMP_ON_SIGUSR1 + "import time\nprint('joined', flush=True)\n"
+                   "def waiting():\n    time.sleep(600)\nwaiting()\n"], tmp_path / "child.log", 1)
     started = time.monotonic()
     assert _answer(proc, started + 5.0) is None
     assert proc.returncode == -signal.SIGKILL and time.monotonic() - started < 60
@@ -256,9 +269,8 @@ def test_four_devices_fit_the_joint_model_as_one_device(tmp_path):
              present=scene.present, speaking=scene.speaking, scale=scene.measurement_scale, fps=scene.fps,
              objects=scene.object_positions, start_bias=0.5 * np.asarray(scene.bias))
     (tmp_path / "child.py").write_text(_SVI_CHILD)
-    proc = subprocess.Popen([sys.executable, str(tmp_path / "child.py"), str(tmp_path / "data.npz"),
-                             str(tmp_path / "fits.npz"), str(SVI_STEPS)], env=_env(4),
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = _start([sys.executable, str(tmp_path / "child.py"), str(tmp_path / "data.npz"), str(tmp_path / "fits.npz"),
+                   str(SVI_STEPS)], tmp_path / "child.log", 4)
     try:
         log = _answer(proc, time.monotonic() + DEADLINE_S)
     finally:
