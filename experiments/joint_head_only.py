@@ -12,7 +12,8 @@ takes the person nearest to the head's forward ray:
 - ``κ`` (yaw and tilt) within ±0.1 of the truth, and its 90% intervals' coverage;
 - issue 37's "confidently wrong" people (bias more than 3° off, truth more than 5 sd
   away, fit ``successful``), with the true bias ``λ (ref − rest)``, ``λ = 1/κ − 1``,
-  ``ref`` the data's mean head direction and ``rest`` the body's direction;
+  ``ref`` the data's mean head direction and ``rest`` the body's direction; and the people as far off and as narrow
+  in any fit, whatever its result code;
 - seconds per fit, and the same scene fitted with its gaze measured (``--compare``).
 
 Usage::
@@ -89,7 +90,8 @@ def evaluate_scene(key, people, duration_s, warmup, draws, compare, prior=JointP
            "tilt_width_ratio": (float(np.mean(post.samples["tilt_width_ratio"]))
                                 if "tilt_width_ratio" in post.samples else None),
            "bias_error_deg": error_deg.tolist(), "bias_cover": ((b_lo <= 0) & (b_hi >= 0)).ravel().tolist(),
-           "confidently_wrong": confidently_wrong(result, error_deg, distance_sd(post.samples["bias"], bias))}
+           "bias_sd_distance": distance_sd(post.samples["bias"], bias).tolist()}
+    row["confidently_wrong"] = confidently_wrong(result, error_deg, row["bias_sd_distance"])
     if compare:
         measured = joint_data(scene.eye_positions, scene.R_world_from_head, scene.gaze_angles, present=scene.present,
                               speaking=scene.speaking, measurement_scale=scene.measurement_scale, fps=scene.fps)
@@ -119,6 +121,9 @@ def summarise(done: dict) -> str:
              f"{np.mean(k_cover):.2f} (yaw {np.mean(k_cover[0::2]):.2f}, tilt {np.mean(k_cover[1::2]):.2f}); "
              f"median error {np.median(k_err):.3f}",
              f"confidently wrong people: {wrong}; results {results}",
+             *([f"far off and narrow whatever the result (bias > 3 deg and > 5 sd off): "
+                f"{sum(sum(confidently_wrong('successful', r['bias_error_deg'], r['bias_sd_distance'])) for r in rows)}"]
+               if all("bias_sd_distance" in r for r in rows) else []),
              *([f"bias 90% coverage {np.mean(np.concatenate([r['bias_cover'] for r in rows])):.2f} "
                 f"(yaw and tilt, {sum(len(r['bias_cover']) for r in rows)})"] if all("bias_cover" in r for r in rows) else []),
              f"seconds per fit: mean {np.mean([r['seconds'] for r in rows]):.0f}"]

@@ -104,7 +104,7 @@ def _start_values(start: JointStart, prior: JointPrior, num_people: int) -> dict
         values["coupling"] = np.asarray(start.coupling, float)
         values["head_lag"] = np.asarray(start.head_lag, float)
         if prior.tilt_width_ratio_log_sd is not None:
-            values["tilt_width_ratio"] = np.asarray(1.0)
+            values["tilt_width_ratio"] = np.asarray(start.tilt_width_ratio or 1.0, float)
         if prior.coupling_shape_scale is not None:
             values["coupling_shape"] = np.zeros(np.shape(start.coupling) + (COUPLING_SHAPE_BASIS,))
     if start.eye_offset.shape[0]:
@@ -152,7 +152,7 @@ def _refine_start(start: dict, arrays: ModelArrays, prior: JointPrior, to_mode: 
        independent frames every gaze still pulls the bias towards its nearest
        candidate, so the mode of that model is in the right basin. Head pose only, the
        couplings and lags stay at the start's (:func:`~jaxgaze.joint.init.coupling_profile`'s
-       choice): free here, a person's ``κ`` can climb into a rival mode (0.41 → 0.73 in one
+       choice, at :func:`~jaxgaze.joint.init.tilt_width_profile`'s ``r``): free here, a person's ``κ`` can climb into a rival mode (0.41 → 0.73 in one
        6-person scene, the bias 16° off, and NUTS stayed there).
     2. With ``to_mode``, from there, the mode of the model itself (``ρ`` free). Its Hessian is NUTS's
        mass matrix (:func:`_laplace_evidence`); the first mode can be a saddle of

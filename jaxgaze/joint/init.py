@@ -34,13 +34,16 @@ from jaxgaze.joint.model import JointPrior, ModelArrays, head_gaze_angles, margi
 from jaxgaze.rays import GazeRays
 from jaxgaze.results import name
 
-__all__ = ["JointStart", "directions_to_people", "wearer_eyes", "calibrate_wearers", "speaker_rule_bias", "coupling_profile", "model_arrays", "corrected_rays", "initial_concurrences", "joint_start",
+__all__ = ["JointStart", "directions_to_people", "wearer_eyes", "calibrate_wearers", "speaker_rule_bias", "coupling_profile", "tilt_width_profile", "model_arrays", "corrected_rays", "initial_concurrences", "joint_start",
            "DEFAULT_CONCURRENCE_OPTIONS"]
 
 #: The head's lag (s) the start assumes with head pose only (lags of a few tenths of a second are common).
 START_HEAD_LAG = 0.2
 #: The couplings :func:`coupling_profile` scores each person's head pose on.
 COUPLING_GRID = np.array([0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95])
+#: The ratios ``r`` of the gaze's scatter in tilt to that in yaw that :func:`tilt_width_profile` scores (head pose
+#: only; a factor of about 1.26 apart, from the isotropic 1 to a tracker reading pitch 4× worse).
+TILT_WIDTH_GRID = np.array([1.0, 1.25, 1.6, 2.0, 2.5, 3.2, 4.0])
 
 #: The mean-shift options of the start: modes above the floor and below 3 m, and a
 #: bandwidth-scaled search (Park et al. 2012, Sec. 3.3).
@@ -60,6 +63,8 @@ class JointStart(NamedTuple):
             the angles of its primary direction.
         coupling: ``(P, 2)`` the head's share ``κ`` of the line of sight the start assumes
             (head pose only; ``None`` otherwise), with ``head_lag`` ``(P,)`` its lag ``τ`` (s).
+        tilt_width_ratio: the ratio ``r`` of the gaze's scatter in tilt to that in yaw the start assumes (head pose
+            only, :func:`tilt_width_profile`; ``None``: 1).
     """
 
     bias: Float[np.ndarray, "P 2"]
@@ -69,6 +74,7 @@ class JointStart(NamedTuple):
     eye_offset: Float[np.ndarray, "Nw 3"] = np.zeros((0, 3))
     coupling: Float[np.ndarray, "P 2"] | None = None
     head_lag: Float[np.ndarray, " P"] | None = None
+    tilt_width_ratio: float | None = None
 
     @property
     def num_concurrences(self) -> int:
@@ -143,36 +149,71 @@ def model_arrays(data: JointData, centres, dtype) -> ModelArrays:
                        jnp.asarray(data.wearers, jnp.int32).reshape(-1), jnp.ones(np.shape(centres)[1], bool))
 
 
-def coupling_profile(data: JointData, key, *, head_lag: float = START_HEAD_LAG,
-                     prior: JointPrior = JointPrior()) -> tuple[np.ndarray, np.ndarray]:
+def coupling_profile(data: JointData, key, *, head_lag: float = START_HEAD_LAG, prior: JointPrior = JointPrior(),
+                     tilt_width_ratio: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Each person's log likelihood of their head pose on a grid of couplings ``κ`` (head pose only; Stiefelhagen & Zhu 2002; Siegfried et al. 2017, eq. 2).
 
     For every ``κ`` of :data:`COUPLING_GRID` (both axes), the gaze read from the head
     (:func:`~jaxgaze.joint.model.head_gaze_angles`), each person's Spk-LMedS bias of that
     gaze refined with their cone width (BFGS), and the model's likelihood (:func:`~jaxgaze.joint.model.marginal_log_likelihood`,
-    with the Jacobian) with the prior's cone width, speaker effect and no concurrences.
+    with the Jacobian) with the prior's cone width, speaker effect and no concurrences;
+    the tilt's scatter ``tilt_width_ratio`` times the yaw's (``None``: the same).
     People are independent given these, so one grid serves everyone. A wrong ``κ`` maps
     a person's looks at one neighbour onto another; the refinement from a single ``κ``
     can stay in that mode. Returns ``(log likelihood (G, P), bias (G, P, 2))``.
     """
-    if data.head_motion is None:
-        raise ValueError("coupling_profile needs head pose only data (joint_data(..., gaze_angles=None))")
-    P, W = data.num_people, data.num_windows
-    arrays = model_arrays(data, np.zeros((W, 0, 3)), jnp.float32)
+    _needs_head_only(data, "coupling_profile")
+    P = data.num_people
+    arrays = model_arrays(data, np.zeros((data.num_windows, 0, 3)), jnp.float32)
     scores, biases = [], []
     for kappa in COUPLING_GRID:
         coupling, lag = np.full((P, 2), kappa), np.full(P, head_lag)
-        gaze = np.asarray(head_gaze_angles(jnp.asarray(data.head_motion), jnp.asarray(coupling), jnp.asarray(lag)))
-        bias, _ = speaker_rule_bias(data._replace(gaze_angles=np.where(data.present[..., None], gaze, 0.0)), key)
-        params = {"alpha_person": 0.0, "alpha_object": 0.0, "speaker_effect": prior.speaker_log_ratio, "stay": 0.9,
-                  "locations": np.zeros((W, 0, 3)), "coupling": coupling, "head_lag": lag}
-        params = {k: jnp.asarray(v, jnp.float32) for k, v in params.items()}
-        free = {"bias": jnp.asarray(bias, jnp.float32), "log_width": jnp.full(P, math.log(prior.cone_width_median),
-                                                                              jnp.float32)}
-        score, free = _profile_point(free, params, arrays)
-        scores.append(np.asarray(score))
-        biases.append(np.asarray(free["bias"]))
+        score, bias = _profile_score(arrays, _head_bias(data, key, coupling, lag), coupling, lag, prior,
+                                     tilt_width_ratio)
+        scores.append(score)
+        biases.append(bias)
     return np.asarray(scores), np.asarray(biases)
+
+
+def tilt_width_profile(data: JointData, key, coupling, *, head_lag: float = START_HEAD_LAG,
+                       prior: JointPrior = JointPrior()) -> np.ndarray:
+    """The log likelihood of everyone's head pose on the grid :data:`TILT_WIDTH_GRID` of ``r``, the ratio of the
+    gaze's scatter in tilt to that in yaw (head pose only; Stiefelhagen & Zhu 2002), at the couplings ``coupling``
+    ``(P, 2)``, as :func:`coupling_profile` scores a coupling. A tracker that reads pitch worse than yaw needs
+    ``r > 1``; read at ``r = 1``, its wide tilts pull the couplings into wrong modes. Returns ``(R,)``."""
+    _needs_head_only(data, "tilt_width_profile")
+    coupling, lag = np.asarray(coupling, float), np.full(data.num_people, head_lag)
+    arrays = model_arrays(data, np.zeros((data.num_windows, 0, 3)), jnp.float32)
+    bias = _head_bias(data, key, coupling, lag)
+    scores = [np.sum(_profile_score(arrays, bias, coupling, lag, prior, float(ratio))[0]) for ratio in TILT_WIDTH_GRID]
+    return np.asarray(scores)
+
+
+def _needs_head_only(data: JointData, caller: str) -> None:
+    if data.head_motion is None:
+        raise ValueError(f"{caller} needs head pose only data (joint_data(..., gaze_angles=None))")
+
+
+def _head_bias(data: JointData, key, coupling, lag) -> np.ndarray:
+    """``(P, 2)``: each person's Spk-LMedS bias of the gaze read from the head at ``coupling`` and ``lag``."""
+    gaze = np.asarray(head_gaze_angles(jnp.asarray(data.head_motion), jnp.asarray(coupling), jnp.asarray(lag)))
+    return speaker_rule_bias(data._replace(gaze_angles=np.where(data.present[..., None], gaze, 0.0)), key)[0]
+
+
+def _profile_score(arrays: ModelArrays, bias, coupling, lag, prior: JointPrior,
+                   tilt_width_ratio: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Each person's log likelihood ``(P,)`` at ``coupling`` and ``tilt_width_ratio``, with their bias refined from
+    ``bias`` ``(P, 2)`` and their cone width from the prior's, and the refined bias."""
+    P = arrays.present.shape[1]
+    params = {"alpha_person": 0.0, "alpha_object": 0.0, "speaker_effect": prior.speaker_log_ratio, "stay": 0.9,
+              "locations": np.zeros(arrays.location_centres.shape), "coupling": coupling, "head_lag": lag,
+              # 1 is the isotropic model's scatter exactly; always present, one compiled program serves both
+              "tilt_width_ratio": 1.0 if tilt_width_ratio is None else tilt_width_ratio}
+    params = {k: jnp.asarray(v, jnp.float32) for k, v in params.items()}
+    free = {"bias": jnp.asarray(bias, jnp.float32), "log_width": jnp.full(P, math.log(prior.cone_width_median),
+                                                                          jnp.float32)}
+    score, free = _profile_point(free, params, arrays)
+    return np.asarray(score), np.asarray(free["bias"])
 
 
 @jax.jit
@@ -315,13 +356,18 @@ def joint_start(
     ``stride`` thins the frames searched for concurrences (default: about 300 frames).
     With head pose only, the gaze is read from the head with each person's
     best ``κ`` of :func:`coupling_profile` and ``τ =`` :data:`START_HEAD_LAG`
-    (:func:`~jaxgaze.joint.model.head_gaze_angles`).
+    (:func:`~jaxgaze.joint.model.head_gaze_angles`). The tilt's width ratio ``r`` is the best of
+    :func:`tilt_width_profile` at those couplings; where it is not 1, the couplings are scored again at it.
     """
-    coupling = head_lag = None
+    coupling = head_lag = ratio = None
     if data.head_motion is not None:
         head_lag = np.full(data.num_people, START_HEAD_LAG)
         scores, _ = coupling_profile(data, key)
         coupling = np.repeat(COUPLING_GRID[np.argmax(scores, axis=0)][:, None], 2, axis=1)
+        ratio = float(TILT_WIDTH_GRID[np.argmax(tilt_width_profile(data, key, coupling))])
+        if ratio != 1.0:
+            scores, _ = coupling_profile(data, key, tilt_width_ratio=ratio)
+            coupling = np.repeat(COUPLING_GRID[np.argmax(scores, axis=0)][:, None], 2, axis=1)
         gaze = np.asarray(head_gaze_angles(jnp.asarray(data.head_motion), jnp.asarray(coupling), jnp.asarray(head_lag)))
         data = data._replace(gaze_angles=np.where(data.present[..., None], gaze, 0.0))
     bias, used = speaker_rule_bias(data, key)
@@ -330,5 +376,5 @@ def joint_start(
     rays = corrected_rays(data, bias, cone_width, eye_offset)
     stride = max(1, data.num_frames // 300) if stride is None else int(stride)
     centres, support = initial_concurrences(data, rays, options=options, stride=stride, progress=progress)
-    return JointStart(bias, used, centres, support, eye_offset, coupling, head_lag)
+    return JointStart(bias, used, centres, support, eye_offset, coupling, head_lag, ratio)
 

@@ -23,7 +23,7 @@ from jaxgaze.joint import JointPrior, fit_joint, joint_data, joint_start
 from jaxgaze.joint import rivals
 from jaxgaze.joint.infer import (SHAPE_MIN_LOG_FACTOR, _arrays, _choose_shape, _laplace_evidence, _long_run_variance,
                                  _refine_start, _start_values, _unconstrained, _widen)
-from jaxgaze.joint.init import COUPLING_GRID, coupling_profile
+from jaxgaze.joint.init import COUPLING_GRID, TILT_WIDTH_GRID, coupling_profile, tilt_width_profile
 from jaxgaze.joint.model import (COUPLING_SHAPE_BASIS, COUPLING_SHAPE_HALF_WIDTH, frame_log_likelihood,
                                  head_gaze_angles, marginal_log_likelihood)
 from jaxgaze.simulate import ConversationConfig, simulate_conversation
@@ -475,21 +475,33 @@ def test_coupling_profile_peaks_near_each_persons_coupling(group):
     scores, bias = coupling_profile(data, jax.random.key(1))
     assert scores.shape == (COUPLING_GRID.size, 4) and bias.shape == (COUPLING_GRID.size, 4, 2)
     np.testing.assert_array_less(np.abs(COUPLING_GRID[scores.argmax(axis=0)] - scene.head_fraction), 0.051)
-    with pytest.raises(ValueError, match="head pose only"):
-        coupling_profile(joint_data(scene.eye_positions, scene.R_world_from_head, scene.gaze_angles,
-                                    present=scene.present, fps=scene.fps), jax.random.key(1))
+    # a tracker reading both axes alike: the tilt's scatter is the yaw's
+    truth = np.repeat(np.asarray(scene.head_fraction)[:, None], 2, axis=1)
+    ratio_scores = tilt_width_profile(data, jax.random.key(1), truth)
+    assert ratio_scores.shape == TILT_WIDTH_GRID.shape and TILT_WIDTH_GRID[ratio_scores.argmax()] == 1.0
+    gaze_data = joint_data(scene.eye_positions, scene.R_world_from_head, scene.gaze_angles, present=scene.present,
+                           fps=scene.fps)
+    for profile in (coupling_profile, lambda d, k: tilt_width_profile(d, k, truth)):
+        with pytest.raises(ValueError, match="head pose only"):
+            profile(gaze_data, jax.random.key(1))
 
 
 def test_a_tracker_reading_pitch_worse_leaves_the_tilt_couplings():
     """A head tracker whose pitch error is 2.5 times its yaw error (``tracker_tilt_factor``): the gaze scatters about
     twice as wide in tilt (``tilt_width_ratio``), and every coupling, yaw and tilt, stays within 0.15 of the truth. With one
     width for both axes (``JointPrior(tilt_width_ratio_log_sd=None)``) the tilt couplings took up the wider scatter on
-    this scene: 0.99 for truths of 0.67–0.74, their 90% intervals 0.03 wide (``benchmarks/RESULTS.md``)."""
+    this scene: 0.99 for truths of 0.67–0.74, their 90% intervals 0.03 wide (``benchmarks/RESULTS.md``).
+
+    The start finds the ratio (:func:`tilt_width_profile`) and scores the couplings at it: read as if both axes
+    scattered alike, person 0's yaw coupling started at 0.8 for a truth of 0.41, a wrong mode."""
     scene = simulate_conversation(jax.random.key(3), num_people=4, duration_s=40.0,
                                   config=ConversationConfig(tracker_tilt_factor=2.5))
     data = joint_data(scene.eye_positions, scene.R_world_from_head, None, present=scene.present,
                       speaking=scene.speaking, fps=scene.fps)
-    posterior = fit_joint(data, key=jax.random.key(0), num_warmup=50, num_samples=50, throw=False)
+    start = joint_start(data, key=jax.random.key(1))
+    assert start.tilt_width_ratio >= 1.6
+    np.testing.assert_array_less(np.abs(start.coupling - np.asarray(scene.head_fraction)[:, None]), 0.1)
+    posterior = fit_joint(data, key=jax.random.key(0), start=start, num_warmup=50, num_samples=50, throw=False)
     error = np.asarray(posterior.samples["coupling"]).mean(0) - np.asarray(scene.head_fraction)[:, None]
     np.testing.assert_array_less(np.abs(error), 0.15)
     assert 1.5 < np.mean(posterior.samples["tilt_width_ratio"]) < 3.0
