@@ -183,6 +183,9 @@ def tilt_width_profile(data: JointData, key, coupling, *, head_lag: float = STAR
     ``r > 1``; read at ``r = 1``, its wide tilts pull the couplings into wrong modes. Returns ``(R,)``."""
     _needs_head_only(data, "tilt_width_profile")
     coupling, lag = np.asarray(coupling, float), np.full(data.num_people, head_lag)
+    if coupling.shape != (data.num_people, 2) or not np.all((coupling > 0) & (coupling <= 1)):
+        raise ValueError(f"tilt_width_profile needs couplings of shape ({data.num_people}, 2) in (0, 1], got shape "
+                         f"{coupling.shape} with values {np.round(coupling, 3).tolist()}")
     arrays = model_arrays(data, np.zeros((data.num_windows, 0, 3)), jnp.float32)
     bias = _head_bias(data, key, coupling, lag)
     scores = [np.sum(_profile_score(arrays, bias, coupling, lag, prior, float(ratio))[0]) for ratio in TILT_WIDTH_GRID]

@@ -484,6 +484,9 @@ def test_coupling_profile_peaks_near_each_persons_coupling(group):
     for profile in (coupling_profile, lambda d, k: tilt_width_profile(d, k, truth)):
         with pytest.raises(ValueError, match="head pose only"):
             profile(gaze_data, jax.random.key(1))
+    for wrong in (truth[:, :1], truth * 100.0, np.full_like(truth, np.nan)):  # one axis, percent, NaN
+        with pytest.raises(ValueError, match=r"couplings of shape \(4, 2\) in \(0, 1\]"):
+            tilt_width_profile(data, jax.random.key(1), wrong)
 
 
 def test_a_tracker_reading_pitch_worse_leaves_the_tilt_couplings():
