@@ -19,6 +19,7 @@ from its module (``from jaxgaze.joint.model import joint_model``).
 | Chandler & Bate 2007, Sec. 3; Newey & West 1987, eq. 2: head pose only, the couplings' draws widened to the sandwich variance of the frames' scores | ``infer._coupling_widening``, ``model.frame_log_likelihood`` | ``joint/infer.py``, ``joint/model.py`` |
 | Siegfried eq. 2, Park Sec. 3.3: the pipeline as the start | ``joint_start``, ``init.speaker_rule_bias``, ``init.initial_concurrences`` | ``joint/init.py`` |
 | Siegfried eq. 1, Park eq. 3: every person's rival bias modes before sampling, Laplace evidence, ``ambiguous`` | ``rivals.bias_profile``, ``rivals.profile_rivals``, ``rivals.Alternative`` | ``joint/rivals.py`` |
+| Head pose only: rival ``(κ, bias)`` modes, a coupling moved with the rest direction kept | ``rivals.coupling_trial``, ``rivals.coupling_rivals`` | ``joint/rivals.py`` |
 | NUTS, SVI, diagnostics, predictive check | ``fit_joint``, ``JointPosterior``, ``infer.SVIDiagnostics`` | ``joint/infer.py`` |
 | Siegfried eq. 1, Park Sec. 4.1: the pipeline's target rule, the oracle, calibration | ``nearest_target``, ``ray_intersection``, ``expected_calibration_error`` | ``joint/metrics.py`` |
 """

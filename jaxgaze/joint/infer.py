@@ -495,18 +495,25 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
     radius = math.radians(rivals.SCAN_RADIUS_DEG)
 
     score = functools.partial(_laplace_evidence, arrays=arrays, prior=prior)
+    trials = ([(axis, shift) for axis in (0, 1) for shift in rivals.COUPLING_SHIFTS]
+              if "coupling" in unconstrained else [])  # head pose only: rivals in (κ, bias) too
+    coarse, _ = rivals.scan_offsets(step_deg=rivals.COUPLING_SCAN_STEP_DEG)
 
-    def twin(bias) -> int | None:  # the found mode whose every bias is within the separation of these
-        return next((m for m, mode in enumerate(modes)
-                     if np.all(np.linalg.norm(bias - np.asarray(mode[0]["bias"]), axis=-1) < separation)), None)
+    def twin(values) -> int | None:  # the found mode whose every bias (and coupling) is within the separation
+        def close(mode) -> bool:
+            near = np.all(np.linalg.norm(np.asarray(values["bias"]) - np.asarray(mode["bias"]), axis=-1) < separation)
+            apart = jax.nn.sigmoid(values["coupling"]) - jax.nn.sigmoid(mode["coupling"]) if trials else 0.0
+            return bool(near) and bool(np.all(np.abs(np.asarray(apart)) < rivals.COUPLING_SEPARATION))
+        return next((m for m, mode in enumerate(modes) if close(mode[0])), None)
 
-    def known(bias) -> bool:
-        return twin(bias) is not None
-
-    def shifted(bias, person, delta):
-        out = np.array(bias)
-        out[person] += delta
-        return out
+    def moved_to(base, person, delta, axis=None, shift=0.0) -> dict:  # the trial values of a rival
+        bias = base["bias"]
+        if axis is None:
+            return {**base, "bias": bias.at[person].add(jnp.asarray(delta, bias.dtype))}
+        kappa = jax.nn.sigmoid(base["coupling"][person, axis])
+        ratio = (1.0 / jax.nn.sigmoid(base["coupling"][person, axis] + shift) - 1.0) / (1.0 / kappa - 1.0)
+        bias = bias.at[person, axis].multiply(ratio).at[person].add(jnp.asarray(delta, bias.dtype))
+        return {**base, "bias": bias, "coupling": base["coupling"].at[person, axis].add(shift)}
 
     evidence, inverse = score(unconstrained) if scored is None else scored
     modes = [(unconstrained, evidence, inverse)]  # (values, evidence, inverse Hessian)
@@ -516,31 +523,35 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
             base = modes[current][0]
             params = model_params(rivals.constrained(base), arrays.location_centres, prior)
             profile = np.asarray(rivals.bias_profile(params, arrays, prior, offsets))
-            rivalled = rivals.profile_rivals(profile, offsets, n, people)
+            rivalled = [(i, delta) for i, delta, _ in rivals.profile_rivals(profile, offsets, n, people)]
             bias = np.asarray(base["bias"])
             far = people & (np.linalg.norm(bias, axis=-1) > radius)
             if far.any():  # a mode beyond the scan's reach of the prior's centre: scan around bias 0 as well
                 around_zero = np.asarray(rivals.bias_profile({**params, "bias": jnp.zeros_like(params["bias"])},
                                                              arrays, prior, offsets))
-                rivalled += [(i, delta - bias[i], gap) for i, delta, gap in rivals.profile_rivals(
+                rivalled += [(i, delta - bias[i]) for i, delta, _ in rivals.profile_rivals(
                     around_zero, offsets, n, far, reference=profile[(n * n) // 2])]
-            found = [(i, delta) for i, delta, _ in rivalled if not known(shifted(base["bias"], i, delta))]
+            if trials:
+                at_trials = np.stack([np.asarray(rivals.bias_profile(rivals.coupling_trial(params, axis, shift),
+                                                                     arrays, prior, coarse)) for axis, shift in trials])
+                rivalled += [(i, delta, axis, shift) for i, axis, shift, delta, _ in rivals.coupling_rivals(
+                    at_trials, trials, coarse, profile[(n * n) // 2], people)]
+            found = [moved_to(base, *rival) for rival in rivalled]
+            found = [trial for trial in found if twin(trial) is None]
             if not found:
                 break
             bar.total = (bar.total or 0) + len(found)
             changed = False
-            for person, delta in found:
+            for trial in found:
                 bar.update(1)
                 tried += 1
-                trial = {**base, "bias": base["bias"].at[person].add(jnp.asarray(delta, base["bias"].dtype))}
                 theta = _refine_start(trial, arrays, prior, True)
-                b = np.asarray(theta["bias"])
-                if not np.all(np.isfinite(b)):
+                if not np.all(np.isfinite(np.asarray(theta["bias"]))):
                     continue
                 evidence, inverse = score(theta)
                 if not math.isfinite(evidence):
                     continue
-                m = twin(b)  # a mode found before: keep the higher of the two points of its basin
+                m = twin(theta)  # a mode found before: keep the higher of the two points of its basin
                 if m is None:
                     modes.append((theta, evidence, inverse))
                     m = len(modes) - 1
@@ -569,8 +580,11 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
                                                float(evidence - best_evidence), float(weights[m]), membership))
         starts.append((theta, inverse))
     start_bias = np.asarray(unconstrained["bias"])
-    moved = tuple(int(i) for i in np.flatnonzero(np.linalg.norm(np.asarray(best["bias"]) - start_bias, axis=-1)
-                                                 >= separation))
+    moved = np.linalg.norm(np.asarray(best["bias"]) - start_bias, axis=-1) >= separation
+    if trials:  # or whose couplings it moved to a rival's
+        moved |= np.any(np.abs(np.asarray(jax.nn.sigmoid(best["coupling"]) - jax.nn.sigmoid(unconstrained["coupling"])))
+                        >= rivals.COUPLING_SEPARATION, axis=-1)
+    moved = tuple(int(i) for i in np.flatnonzero(moved))
     search = rivals.ModeSearch(best, tuple(alternatives), moved, tried, float(best_evidence), tuple(starts))
     return search, best_inverse
 
