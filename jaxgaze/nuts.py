@@ -32,7 +32,7 @@ from numpyro.infer.util import constrain_fn, potential_energy
 from jaxgaze import _progress
 from jaxgaze.results import RESULTS
 
-__all__ = ["sample_nuts", "laplace_inverse_mass", "MixingDiagnostics", "SamplerReport", "sampler_report",
+__all__ = ["sample_nuts", "laplace_inverse_mass", "laplace_parts", "MixingDiagnostics", "SamplerReport", "sampler_report",
            "mixing_diagnostics", "mixing_result", "posterior_summary", "split_chains", "set_units",
            "quiet_single_chain", "MAX_RHAT", "MIN_ESS", "MAX_DIVERGENT_SHARE", "MIN_ACCEPTANCE", "HDI_PROB"]
 
@@ -179,6 +179,15 @@ def laplace_inverse_mass(potential_fn, params: dict, min_curvature: float):
     determinant 0.001 nats and the diagonal 0.6% from the exact one (2026-12-05,
     ``benchmarks/RESULTS.md``). Exact for a quadratic potential up to rounding.
     """
+    return laplace_parts(potential_fn, params, min_curvature)[0]
+
+
+def laplace_parts(potential_fn, params: dict, min_curvature: float):
+    """:func:`laplace_inverse_mass` and the gradient at ``params`` from the same ``2d`` gradients (flattened alike).
+
+    The gradient is the mean of the ``d`` central pairs ``(∇U(θ + h e_i) + ∇U(θ − h e_i)) / 2``, exact for a
+    quadratic potential up to rounding: with the inverse Hessian, it gives a Newton step ``−Σ ∇U`` at no further
+    gradient (:func:`~jaxgaze.joint.infer.fit_joint` takes such steps to its mode before sampling)."""
     flat, unravel = ravel_pytree(params)
     gradient = jax.grad(lambda x: potential_fn(unravel(x)))
     steps = HESSIAN_STEP * jnp.eye(flat.shape[0], dtype=flat.dtype)
@@ -186,7 +195,9 @@ def laplace_inverse_mass(potential_fn, params: dict, min_curvature: float):
     hessian = (both[: flat.shape[0]] - both[flat.shape[0]:]) / (2.0 * HESSIAN_STEP)
     curvature, axes = jnp.linalg.eigh(0.5 * (hessian + hessian.T))
     inverse = (axes / jnp.maximum(jnp.abs(curvature), min_curvature)) @ axes.T
-    return jnp.where(jnp.all(jnp.isfinite(hessian)), inverse, jnp.eye(flat.shape[0], dtype=flat.dtype))
+    finite = jnp.all(jnp.isfinite(hessian))
+    return (jnp.where(finite, inverse, jnp.eye(flat.shape[0], dtype=flat.dtype)),
+            jnp.mean(both, axis=0))
 
 
 class MixingDiagnostics(NamedTuple):
