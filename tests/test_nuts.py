@@ -9,7 +9,7 @@ import numpyro
 import numpyro.distributions as dist
 import pytest
 
-from jaxgaze.nuts import laplace_inverse_mass, sample_nuts
+from jaxgaze.nuts import laplace_inverse_mass, laplace_parts, sample_nuts
 
 # A badly scaled posterior: 'a' has sd 1e-3, 'b' is 2-D with sd 50 and 0.2 and correlation 0.9.
 A_SD = 1e-3
@@ -38,6 +38,16 @@ def test_laplace_inverse_mass_of_a_gaussian_is_its_covariance():
     params = {"b": jnp.zeros(2), "a": jnp.zeros(())}
     mass = laplace_inverse_mass(_potential, params, 1e-6)
     np.testing.assert_allclose(np.asarray(mass), _true_covariance(), rtol=1e-4, atol=1e-9)
+
+
+def test_laplace_parts_newton_step_lands_on_the_mode_of_a_gaussian(x64):
+    """The gradient from the Hessian's own ``2d`` gradients is the exact one (a quadratic potential), so one Newton
+    step ``θ − Σ ∇U`` from anywhere lands on the mode (0). In float64: the scales differ by 5·10⁴."""
+    params = {"b": jnp.array([0.7, -1.2]), "a": jnp.array(0.4)}
+    inverse, gradient = laplace_parts(_potential, params, 1e-6)
+    flat = np.array([0.4, 0.7, -1.2])  # 'a', then 'b'
+    np.testing.assert_allclose(np.asarray(gradient), np.linalg.solve(_true_covariance(), flat), rtol=1e-8)
+    np.testing.assert_allclose(flat - np.asarray(inverse) @ np.asarray(gradient), 0.0, atol=1e-6)
 
 
 def test_laplace_inverse_mass_floors_curvature_and_refuses_nonfinite():

@@ -946,8 +946,9 @@ def fit_joint(
             mode of the model itself (BFGS; the wearers' eye offsets are kept), and
             sampled or fitted from there. Without wearers, concurrences the data do not need are
             then dropped (Laplace evidence; :func:`_prune_concurrences`) and every person's rival
-            bias modes compared (:mod:`~jaxgaze.joint.rivals`): NUTS samples each mode that
-            carries weight, SVI only the best (its ``result`` is ``ambiguous`` all the same). NUTS uses the inverse Hessian of the
+            bias modes compared (:mod:`~jaxgaze.joint.rivals`; head pose only, couplings too): NUTS samples each
+            mode that carries weight, SVI only the best (its ``result`` is ``ambiguous`` all the same). The best is
+            taken to the mode by Newton's steps (:func:`_polish_mode`). NUTS uses the inverse Hessian of the
             potential there as its mass matrix, fixed (only the step size adapts in
             the warm-up); with wearers of head-mounted cameras, whose eyes the start
             holds, it learns the mass matrix in the warm-up windows instead. For head pose only
