@@ -516,9 +516,8 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
         bias = base["bias"]
         if axis is None:
             return {**base, "bias": bias.at[person].add(jnp.asarray(delta, bias.dtype))}
-        kappa = jax.nn.sigmoid(base["coupling"][person, axis])
-        ratio = (1.0 / jax.nn.sigmoid(base["coupling"][person, axis] + shift) - 1.0) / (1.0 / kappa - 1.0)
-        bias = bias.at[person, axis].multiply(ratio).at[person].add(jnp.asarray(delta, bias.dtype))
+        # as rivals.coupling_trial, for one person in the unconstrained values (the coupling a logit): λ'/λ = e^{−shift}
+        bias = bias.at[person, axis].multiply(math.exp(-shift)).at[person].add(jnp.asarray(delta, bias.dtype))
         return {**base, "bias": bias, "coupling": base["coupling"].at[person, axis].add(shift)}
 
     evidence, inverse = score(unconstrained) if scored is None else scored

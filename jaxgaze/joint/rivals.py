@@ -192,12 +192,13 @@ def profile_rivals(profile: np.ndarray, offsets: np.ndarray, n: int, candidates:
 
 def coupling_trial(params: dict, axis: int, shift: float) -> dict:
     """``params`` with every person's coupling on ``axis`` moved by ``shift`` on the logit scale, and the bias on that
-    axis scaled by ``λ'/λ`` (``λ = 1/κ − 1``): the bias is ``λ (ref − rest)``, so the rest direction stays put."""
+    axis scaled by ``λ'/λ = e^{−shift}`` (``λ = 1/κ − 1 = e^{−logit κ}``): the bias is ``λ (ref − rest)``, so the rest
+    direction stays put."""
     kappa = params["coupling"]
     moved = jax.nn.sigmoid(jnp.log(kappa) - jnp.log1p(-kappa) + shift)
-    ratio = (1.0 / moved - 1.0) / (1.0 / kappa - 1.0)
     keep = jnp.arange(kappa.shape[-1]) != axis
-    return {**params, "coupling": jnp.where(keep, kappa, moved), "bias": params["bias"] * jnp.where(keep, 1.0, ratio)}
+    return {**params, "coupling": jnp.where(keep, kappa, moved),
+            "bias": params["bias"] * jnp.where(keep, 1.0, math.exp(-shift))}
 
 
 def coupling_rivals(profiles: np.ndarray, trials: list[tuple[int, float]], offsets: np.ndarray,
