@@ -8,9 +8,11 @@ as ratios to the gaze model without the spot. ``--fits`` also times ``fit_joint`
 300; the persistent compilation cache off; the second call reuses the compiled programs), the figure of issue 38's
 bound (head pose only within 1.5× of the gaze measured). Its first calls come after the gradients' compilations in
 the same process (the start's programs among them), so they are shorter than a fresh process's. Pin it to one core
-for figures (``taskset -c 0``); ``benchmarks/RESULTS.md`` has them.
+for figures (``taskset -c 0``); ``benchmarks/RESULTS.md`` has them. ``--no-spot`` fits both without a fixation's spot
+(``JointPrior(held_scale=None)``), the same model on both inputs: the gaze-measured fit drops the spot on this scene
+by its Bayes factor and head pose only keeps it, whose gradient costs 1.8 times as much.
 
-    python benchmarks/bench_joint_gradient.py [--steps 50] [--rounds 5] [--fits]
+    python benchmarks/bench_joint_gradient.py [--steps 50] [--rounds 5] [--fits] [--no-spot]
 """
 
 from __future__ import annotations
@@ -58,6 +60,7 @@ def main(argv=None) -> None:
     parser.add_argument("--steps", type=int, default=50, help="gradients per timed call")
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--fits", action="store_true", help="also time fit_joint twice on each input")
+    parser.add_argument("--no-spot", action="store_true", help="fit both without a fixation's spot")
     args = parser.parse_args(argv)
     jax.config.update("jax_enable_compilation_cache", False)  # the first call compiles, as in a fresh install
     scene = simulate_conversation(jax.random.key(5), num_people=6, duration_s=60.0)
@@ -83,7 +86,8 @@ def main(argv=None) -> None:
         data = _data(scene, head_only)
         for call in (0, 1):
             t = time.perf_counter()
-            post = fit_joint(data, key=jax.random.key(0), num_warmup=300, num_samples=300)
+            post = fit_joint(data, key=jax.random.key(0), num_warmup=300, num_samples=300,
+                             prior=JointPrior(held_scale=None) if args.no_spot else JointPrior())
             times[head_only, call] = time.perf_counter() - t
             print(f"fit, {'head pose only' if head_only else 'gaze measured'}, call {call + 1}: "
                   f"{times[head_only, call]:.1f} s, spot {'kept' if 'held_cone_share' in post.samples else 'dropped'}, "

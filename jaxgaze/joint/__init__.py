@@ -20,7 +20,7 @@ from its module (``from jaxgaze.joint.model import joint_model``).
 | Siegfried eq. 2, Park Sec. 3.3: the pipeline as the start | ``joint_start``, ``init.speaker_rule_bias``, ``init.initial_concurrences`` | ``joint/init.py`` |
 | Siegfried eq. 1, Park eq. 3: every person's rival bias modes before sampling, Laplace evidence, ``ambiguous`` | ``rivals.bias_profile``, ``rivals.profile_rivals``, ``rivals.Alternative`` | ``joint/rivals.py`` |
 | Head pose only: rival ``(κ, bias)`` modes, a coupling moved with the rest direction kept | ``rivals.coupling_trial``, ``rivals.coupling_rivals`` | ``joint/rivals.py`` |
-| Nocedal & Wright 2006, Sec. 3.3: Newton's steps to the chosen mode, the Laplace Hessian as NUTS's mass matrix | ``infer._polish_mode``, ``nuts.laplace_parts`` | ``joint/infer.py``, ``nuts.py`` |
+| Nocedal & Wright 2006, Sec. 3.3 and 11.1: chord and Newton's steps to the chosen mode, the Laplace Hessian as NUTS's mass matrix | ``infer._polish_mode``, ``infer._descent_steps``, ``nuts.laplace_parts`` | ``joint/infer.py``, ``nuts.py`` |
 | NUTS, SVI, diagnostics, predictive check | ``fit_joint``, ``JointPosterior``, ``infer.SVIDiagnostics`` | ``joint/infer.py`` |
 | Siegfried eq. 1, Park Sec. 4.1: the pipeline's target rule, the oracle, calibration | ``nearest_target``, ``ray_intersection``, ``expected_calibration_error`` | ``joint/metrics.py`` |
 """

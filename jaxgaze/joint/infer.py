@@ -62,6 +62,11 @@ _REFINE_STEPS = 300
 #: the potential a full step is predicted to gain, nats) below which the mode counts as reached.
 _NEWTON_STEPS = 4
 _NEWTON_DECREMENT = 0.01
+#: Steps with the search's inverse Hessian before the first Laplace of :func:`_polish_mode` (one gradient each).
+_CHORD_STEPS = 12
+#: The most (nats) that :func:`_predicted_evidence` adds for a mode's potential below a point's: beyond, the point is
+#: no mode's neighbour, where the quadratic model need not hold.
+_MAX_PREDICTED_GAIN = 50.0
 #: The least curvature magnitude of the potential that NUTS's mass matrix takes (:func:`_laplace_evidence`);
 #: the weakest prior curvature is about 0.1 (a logit of sd 3), so only a direction the start is no mode in
 #: is raised to it.
@@ -296,16 +301,30 @@ def _twin_concurrences(unconstrained: dict, centres, prior: JointPrior) -> list[
 
 
 def _laplace_evidence(unconstrained: dict, arrays: ModelArrays, prior: JointPrior) -> tuple[float, jax.Array]:
-    """The Laplace log evidence of the mode ``unconstrained`` (:func:`~jaxgaze.joint.rivals.log_evidence`) and the
+    """The Laplace log evidence of the mode at ``unconstrained`` (:func:`~jaxgaze.joint.rivals.log_evidence`) and the
     inverse Hessian there, NUTS's inverse mass matrix, in one program (the potential evaluated op by op took longer
     than compiling it: 6 s a call on a 4-person scene).
+
+    BFGS stops short of the mode along the tilt ridge, and the potential there is short of the mode's: it is taken at
+    the mode by Newton's prediction, the potential lower by half the decrement, ``½ ∇Uᵀ Σ ∇U``
+    (:func:`_predicted_evidence`), so that the pruning and the rival search compare modes, not where BFGS stopped.
 
     The posterior's scales differ by a factor of 100 (a bias of 0.1° against a
     logit); from the identity, NUTS's first warm-up windows take 150–180 leapfrog
     steps per draw, from this matrix 7–8, and no window is spent learning it.
     """
-    evidence, inverse, _, _ = _laplace_parts(unconstrained, arrays, prior)
-    return float(evidence), inverse
+    evidence, inverse, _, gradient = _laplace_parts(unconstrained, arrays, prior)
+    return _predicted_evidence(evidence, inverse, gradient), inverse
+
+
+def _predicted_evidence(evidence, inverse, gradient) -> float:
+    """The Laplace log evidence at the mode near ``θ`` from the one at ``θ``: plus the potential a Newton step is
+    predicted to gain, ``½ ∇Uᵀ Σ ∇U`` (Nocedal & Wright 2006, eq. 2.14's quadratic model at its least), at most
+    :data:`_MAX_PREDICTED_GAIN`. Head pose only, the BFGS points of the pruning and the rival search were 4–41 nats of
+    evidence short of their modes on the 6-person bench scene, and the prediction 1.0–4.2 nats over; 2–44 short on a
+    5-person one, and 0.3–19.6 over (``benchmarks/RESULTS.md``)."""
+    gain = 0.5 * float(gradient @ inverse @ gradient)
+    return float(evidence) + (min(gain, _MAX_PREDICTED_GAIN) if math.isfinite(gain) and gain > 0.0 else 0.0)
 
 
 @functools.partial(jax.jit, static_argnames=("prior",))
@@ -594,38 +613,71 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
     return search, best_inverse
 
 
+@functools.partial(jax.jit, static_argnames=("prior",))
+def _potential_and_gradient(unconstrained: dict, arrays: ModelArrays, prior: JointPrior):
+    """The potential and its gradient (flattened as :func:`_laplace_parts`'s) at ``unconstrained``: one gradient,
+    where :func:`_laplace_parts` takes ``2d`` of them."""
+    flat, unravel = ravel_pytree(unconstrained)
+    return jax.value_and_grad(lambda x: potential_energy(_model(prior, None), tuple(arrays), {}, unravel(x)))(flat)
+
+
+def _descent_steps(flat, unravel, inverse, energy, gradient, evaluate, steps: int):
+    """At most ``steps`` steps ``θ ← θ − α Σ ∇U`` (``α`` halved from 1 to 1/4 until the potential falls) while the
+    decrement ``∇Uᵀ Σ ∇U`` is at least :data:`_NEWTON_DECREMENT`; ``evaluate(values)`` gives ``(U, ∇U, …)``.
+    Returns the last point and its evaluation (``None`` where no step was taken)."""
+    last = None
+    for _ in range(steps):
+        step = -(inverse @ gradient)
+        if not float(-(gradient @ step)) > _NEWTON_DECREMENT:  # also a non-finite one
+            break
+        for alpha in (1.0, 0.5, 0.25):
+            trial = evaluate(unravel(flat + alpha * step))
+            energy_trial, gradient_trial = trial[:2]
+            if (bool(jnp.isfinite(energy_trial)) and float(energy_trial) < float(energy)
+                    and bool(jnp.all(jnp.isfinite(gradient_trial)))):
+                flat, last, energy, gradient = flat + alpha * step, trial, energy_trial, gradient_trial
+                break
+        else:
+            break
+    return flat, last
+
+
 def _polish_mode(search, inverse_hessian, arrays: ModelArrays, prior: JointPrior):
-    """Newton's steps ``θ ← θ − α Σ ∇U`` from the chosen mode (``Σ`` the Laplace inverse Hessian, ``α`` halved until
-    the potential falls; at most :data:`_NEWTON_STEPS`, until the decrement ``∇Uᵀ Σ ∇U`` is below
-    :data:`_NEWTON_DECREMENT`), and the mass matrix taken at the last point (Nocedal & Wright 2006, Sec. 3.3).
+    """Steps ``θ ← θ − α Σ ∇U`` from the chosen mode to the mode (``α`` halved until the potential falls, until the
+    decrement ``∇Uᵀ Σ ∇U`` is below :data:`_NEWTON_DECREMENT`), and the mass matrix taken at the last point
+    (Nocedal & Wright 2006, Sec. 3.3 and 11.1).
 
     The start's BFGS stops short of the mode along a flat, curved ridge: it used all of its 300 steps on every
     scene tried, and three more runs of it still lowered the potential by 1–13 nats each. Head pose only, such a
     ridge runs through every tilt coupling, the concurrences' heights and ``r``; on one 3-person scene the curvature
     taken short of the mode gave it a quarter of the draws' variance, and NUTS took an ESS of 37–53 of 500 draws.
-    Two or three Newton steps reach the mode (the gradient from 48–500 to 0.1–0.2), as each Hessian is exact there
-    and the Laplace's own ``2d`` gradients give ``∇U`` (:func:`~jaxgaze.nuts.laplace_parts`): the compiled
-    :func:`_laplace_parts` is all a step costs (``benchmarks/RESULTS.md``, 2026-12-07)."""
+    First up to :data:`_CHORD_STEPS` steps with the search's own inverse Hessian ``Σ`` (the chord method: each step
+    one gradient, :func:`_potential_and_gradient`), then the Laplace at the point reached (:func:`_laplace_parts`,
+    ``2d`` gradients: the mass matrix, and ``∇U`` from the same gradients) and, while its decrement is still above
+    the bar, Newton's steps with it, at most :data:`_NEWTON_STEPS`. On the 6-person bench scene (head pose only) the chord steps took
+    the decrement 10.5 → 0.003 and the polish 0.64 s, against 1.9 s for three Laplace calls (``benchmarks/RESULTS.md``)."""
     values = search.start
     flat, unravel = ravel_pytree(values)
-    evidence, inverse, energy, gradient = _laplace_parts(values, arrays, prior)
-    moved = False
-    for _ in range(_NEWTON_STEPS):
-        step = -(inverse @ gradient)
-        if not float(-(gradient @ step)) > _NEWTON_DECREMENT:  # also a non-finite one
-            break
-        for alpha in (1.0, 0.5, 0.25):
-            trial = _laplace_parts(unravel(flat + alpha * step), arrays, prior)
-            if bool(jnp.isfinite(trial[2])) and float(trial[2]) < float(energy) and bool(jnp.isfinite(trial[0])):
-                flat = flat + alpha * step
-                evidence, inverse, energy, gradient = trial
-                moved = True
-                break
-        else:
-            break
-    if not moved:
+    energy, gradient = _potential_and_gradient(values, arrays, prior)
+    flat, last = _descent_steps(flat, unravel, inverse_hessian, energy, gradient,
+                                   lambda v: _potential_and_gradient(v, arrays, prior), _CHORD_STEPS)
+    if last is None:
         return search, inverse_hessian
-    return search._replace(start=unravel(flat), log_evidence=float(evidence)), inverse
+    evidence, inverse, energy, gradient = _laplace_parts(unravel(flat), arrays, prior)
+    if not bool(jnp.isfinite(evidence)):
+        return search, inverse_hessian
+    newton_flat, newton_last = _descent_steps(flat, unravel, inverse, energy, gradient,
+                                                 lambda v: _reordered(_laplace_parts(v, arrays, prior)),
+                                                 _NEWTON_STEPS)
+    if newton_last is not None and bool(jnp.isfinite(newton_last[2])):
+        flat, (energy, gradient, evidence, inverse) = newton_flat, newton_last
+    return search._replace(start=unravel(flat), log_evidence=_predicted_evidence(evidence, inverse, gradient)), inverse
+
+
+def _reordered(parts):
+    """:func:`_laplace_parts`'s ``(evidence, inverse, energy, gradient)`` as ``(energy, gradient, evidence, inverse)``."""
+    evidence, inverse, energy, gradient = parts
+    return energy, gradient, evidence, inverse
 
 
 def _bias_index(values: dict) -> int:
@@ -947,7 +999,8 @@ def fit_joint(
             then dropped (Laplace evidence; :func:`_prune_concurrences`) and every person's rival
             bias modes compared (:mod:`~jaxgaze.joint.rivals`; head pose only, couplings too): NUTS samples each
             mode that carries weight, SVI only the best (its ``result`` is ``ambiguous`` all the same). The best is
-            taken to the mode by Newton's steps (:func:`_polish_mode`). NUTS uses the inverse Hessian of the
+            taken to the mode (:func:`_polish_mode`: steps with the search's inverse Hessian, then Newton's steps
+            while needed). NUTS uses the inverse Hessian of the
             potential there as its mass matrix, fixed (only the step size adapts in
             the warm-up); with wearers of head-mounted cameras, whose eyes the start
             holds, it learns the mass matrix in the warm-up windows instead. For head pose only

@@ -11,7 +11,7 @@ import pytest
 
 from jaxgaze.joint import (JointPosterior, expected_calibration_error, fit_joint, joint_data, nearest_target,
                            ray_intersection, reliability_curve)
-from jaxgaze.joint.infer import _descend
+from jaxgaze.joint.infer import _NEWTON_DECREMENT, _descend, _descent_steps
 from jaxgaze.joint.init import corrected_rays
 from jaxgaze.results import RESULTS, FitError, succeeded
 from tests.helpers import conversation
@@ -223,3 +223,32 @@ def test_held_entries_of_a_descent_stay_and_the_rest_reach_the_conditional_mode(
     f, h = np.array([0, 1, 3]), np.array([2])
     conditional = centre[f] - np.linalg.solve(A[np.ix_(f, f)], A[np.ix_(f, h)] @ (np.array([-1.0]) - centre[h]))
     np.testing.assert_allclose([*held["x"], held["y"][1]], conditional, atol=1e-5)  # BFGS's rtol 1e-6
+
+
+def test_chord_steps_reach_a_quadratic_mode_with_another_points_inverse_hessian():
+    """The chord method of :func:`_polish_mode` (Nocedal & Wright 2006, Sec. 11.1): with an inverse Hessian off by
+    up to 40% along every axis (the search's, taken short of the mode), ``θ ← θ − Σ ∇U`` still reaches the mode of a
+    quadratic, the decrement below the bar; with the exact inverse one step lands on it; with a non-descent ``Σ`` no
+    step is taken."""
+    rng = np.random.default_rng(0)
+    d = 6
+    axes = np.linalg.qr(rng.normal(size=(d, d)))[0]
+    hessian = axes @ np.diag(np.geomspace(0.5, 400.0, d)) @ axes.T
+    mode, start = rng.normal(size=d), rng.normal(size=d)
+    evaluate = lambda x: (0.5 * (x - mode) @ hessian @ (x - mode), hessian @ (x - mode))  # noqa: E731
+    wrong = axes @ np.diag(np.geomspace(0.5, 400.0, d) * np.linspace(0.6, 1.4, d)) @ axes.T
+    start_energy, start_gradient = evaluate(start)
+
+    decrement = lambda g: float(g @ np.linalg.inv(hessian) @ g)  # noqa: E731
+    flat, last = _descent_steps(start, lambda x: x, np.linalg.inv(wrong), start_energy, start_gradient, evaluate, 30)
+    assert decrement(last[1]) < _NEWTON_DECREMENT
+    assert evaluate(flat)[0] < 0.5 * _NEWTON_DECREMENT  # the potential within the bar of its least value, 0
+    _, last = _descent_steps(start, lambda x: x, np.linalg.inv(wrong), start_energy, start_gradient, evaluate, 1)
+    assert decrement(last[1]) > _NEWTON_DECREMENT  # one chord step does not reach it
+
+    flat, _ = _descent_steps(start, lambda x: x, np.linalg.inv(hessian), start_energy, start_gradient, evaluate, 1)
+    np.testing.assert_allclose(flat, mode, atol=1e-9)
+
+    flat, last = _descent_steps(start, lambda x: x, -np.linalg.inv(hessian), start_energy, start_gradient, evaluate, 30)
+    assert last is None
+    np.testing.assert_array_equal(flat, start)
