@@ -654,21 +654,21 @@ def _polish_mode(search, inverse_hessian, arrays: ModelArrays, prior: JointPrior
     First up to :data:`_CHORD_STEPS` steps with the search's own inverse Hessian ``Σ`` (the chord method: each step
     one gradient, :func:`_potential_and_gradient`), then the Laplace at the point reached (:func:`_laplace_parts`,
     ``2d`` gradients: the mass matrix, and ``∇U`` from the same gradients) and, while its decrement is still above
-    the bar, Newton's steps with it, at most :data:`_NEWTON_STEPS`. On the 6-person bench scene (head pose only) the chord steps took
-    the decrement 10.5 → 0.003 and the polish 0.64 s, against 1.9 s for three Laplace calls (``benchmarks/RESULTS.md``)."""
+    the bar, Newton's steps with it, at most :data:`_NEWTON_STEPS`. On the 6-person bench scene (head pose only) the
+    chord steps took the decrement 10.5 → 0.003 and the polish 0.64 s, against 1.9 s for three Laplace calls
+    (``benchmarks/RESULTS.md``)."""
     values = search.start
     flat, unravel = ravel_pytree(values)
     energy, gradient = _potential_and_gradient(values, arrays, prior)
     flat, last = _descent_steps(flat, unravel, inverse_hessian, energy, gradient,
-                                   lambda v: _potential_and_gradient(v, arrays, prior), _CHORD_STEPS)
+                                lambda v: _potential_and_gradient(v, arrays, prior), _CHORD_STEPS)
     if last is None:
         return search, inverse_hessian
     evidence, inverse, energy, gradient = _laplace_parts(unravel(flat), arrays, prior)
     if not bool(jnp.isfinite(evidence)):
         return search, inverse_hessian
     newton_flat, newton_last = _descent_steps(flat, unravel, inverse, energy, gradient,
-                                                 lambda v: _reordered(_laplace_parts(v, arrays, prior)),
-                                                 _NEWTON_STEPS)
+                                              lambda v: _reordered(_laplace_parts(v, arrays, prior)), _NEWTON_STEPS)
     if newton_last is not None and bool(jnp.isfinite(newton_last[2])):
         flat, (energy, gradient, evidence, inverse) = newton_flat, newton_last
     return search._replace(start=unravel(flat), log_evidence=_predicted_evidence(evidence, inverse, gradient)), inverse
