@@ -327,10 +327,16 @@ def _predicted_evidence(evidence, inverse, gradient) -> float:
     return float(evidence) + (min(gain, _MAX_PREDICTED_GAIN) if math.isfinite(gain) and gain > 0.0 else 0.0)
 
 
+def _potential(arrays: ModelArrays, prior: JointPrior):
+    """``U(θ)`` of the whole model (no subsampling) on numpyro's unconstrained values: the negative log joint density
+    that BFGS, the Laplace and NUTS share."""
+    return functools.partial(potential_energy, _model(prior, None), tuple(arrays), {})
+
+
 @functools.partial(jax.jit, static_argnames=("prior",))
 def _laplace_parts(unconstrained: dict, arrays: ModelArrays, prior: JointPrior):
     """The Laplace log evidence, the inverse Hessian, the potential and its gradient (flattened) at ``unconstrained``."""
-    potential = functools.partial(potential_energy, _model(prior, None), tuple(arrays), {})
+    potential = _potential(arrays, prior)
     inverse, gradient = laplace_parts(potential, unconstrained, _MIN_CURVATURE)
     energy = potential(unconstrained)
     return rivals.log_evidence(energy, inverse), inverse, energy, gradient
@@ -486,7 +492,7 @@ def _spot_log_bayes_factor(plain_mode: dict, arrays: ModelArrays, prior: JointPr
     """
     u = jnp.linspace(0.0, 1.0, _SPOT_POINTS, dtype=plain_mode["bias"].dtype)
     spread = 4.0 * prior.held_scale * jnp.square(u)
-    potential = functools.partial(potential_energy, _model(prior, None), tuple(arrays), {})
+    potential = _potential(arrays, prior)
     energy = jax.lax.map(lambda s: potential({**plain_mode, "held_spread": s}), spread)  # U(s)
     log_integrand = energy[0] - energy  # log [p(g|s) p(s) / (p(g|0) p(s = 0))]
     peak = jnp.max(log_integrand)
@@ -618,7 +624,8 @@ def _potential_and_gradient(unconstrained: dict, arrays: ModelArrays, prior: Joi
     """The potential and its gradient (flattened as :func:`_laplace_parts`'s) at ``unconstrained``: one gradient,
     where :func:`_laplace_parts` takes ``2d`` of them."""
     flat, unravel = ravel_pytree(unconstrained)
-    return jax.value_and_grad(lambda x: potential_energy(_model(prior, None), tuple(arrays), {}, unravel(x)))(flat)
+    potential = _potential(arrays, prior)
+    return jax.value_and_grad(lambda x: potential(unravel(x)))(flat)
 
 
 def _descent_steps(flat, unravel, inverse, energy, gradient, evaluate, steps: int):
