@@ -173,7 +173,9 @@ def laplace_inverse_mass(potential_fn, params: dict, min_curvature: float):
     gives the identity.
 
     The Hessian is the central difference of the exact gradient with step
-    :data:`HESSIAN_STEP` (``2d`` gradients in one ``vmap``), not ``jax.hessian``: on the
+    :data:`HESSIAN_STEP` (``2d`` gradients, one after the other on CPU and in one batch on an accelerator: on
+    XLA:CPU the batch of 96 took 0.63 s where the same gradients one by one took 0.20 s, head pose only, 60 s × 6
+    people, ``benchmarks/RESULTS.md``), not ``jax.hessian``: on the
     joint model (60 s × 6 people, ``d = 29``, float32) forward-over-reverse took 26.7 s to
     compile and ``jax.jacrev(jax.grad)`` 24.7 s, the differences 13.2 s, with the log
     determinant 0.001 nats and the diagonal 0.6% from the exact one (2026-12-05,
@@ -191,7 +193,8 @@ def laplace_parts(potential_fn, params: dict, min_curvature: float):
     flat, unravel = ravel_pytree(params)
     gradient = jax.grad(lambda x: potential_fn(unravel(x)))
     steps = HESSIAN_STEP * jnp.eye(flat.shape[0], dtype=flat.dtype)
-    both = jax.vmap(gradient)(flat + jnp.concatenate([steps, -steps]))  # (2d, d)
+    both = jax.lax.map(gradient, flat + jnp.concatenate([steps, -steps]),
+                       batch_size=None if jax.default_backend() == "cpu" else 2 * flat.shape[0])  # (2d, d)
     hessian = (both[: flat.shape[0]] - both[flat.shape[0]:]) / (2.0 * HESSIAN_STEP)
     curvature, axes = jnp.linalg.eigh(0.5 * (hessian + hessian.T))
     inverse = (axes / jnp.maximum(jnp.abs(curvature), min_curvature)) @ axes.T
