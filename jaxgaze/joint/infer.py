@@ -203,7 +203,7 @@ def _without_spot(values: dict, prior: JointPrior) -> tuple[dict, dict]:
 
 def _coupling_widening(unconstrained: dict, inverse_hessian, arrays: ModelArrays, prior: JointPrior,
                        fps: float) -> np.ndarray:
-    """``(P, 2)`` factors ``≥ 1`` that widen each coupling's posterior around its mean (logit scale) to the sandwich
+    """``(P, 2)`` factors ``≥ 1`` that widen each coupling's posterior around its mean (``log κ``) to the sandwich
     variance (Chandler & Bate 2007, Sec. 3; Newey & West 1987).
 
     The model counts a head's errors as independent from frame to frame (beyond a fixation's spot), but sway and a
@@ -248,12 +248,12 @@ def _frame_scores(unconstrained: dict, arrays: ModelArrays, prior: JointPrior):
 
 
 def _widen(draws: dict, factor: np.ndarray) -> dict:
-    """The coupling draws ``(chains, S, P, 2)`` spread ``factor`` times further from their mean, on the logit scale."""
-    kappa = np.clip(np.asarray(draws["coupling"], np.float64), 1e-12, 1.0 - 1e-12)  # float32 draws may round to 1
-    logit = np.log(kappa) - np.log1p(-kappa)
-    centre = logit.reshape((-1,) + logit.shape[2:]).mean(axis=0)
-    widened = centre + factor * (logit - centre)
-    return {**draws, "coupling": (1.0 / (1.0 + np.exp(-widened))).astype(np.asarray(draws["coupling"]).dtype)}
+    """The coupling draws ``(chains, S, P, 2)`` spread ``factor`` times further from their mean in ``log κ``, the
+    sampled coordinate."""
+    log_kappa = np.log(np.asarray(draws["coupling"], np.float64))
+    centre = log_kappa.reshape((-1,) + log_kappa.shape[2:]).mean(axis=0)
+    widened = centre + factor * (log_kappa - centre)
+    return {**draws, "coupling": np.exp(widened).astype(np.asarray(draws["coupling"]).dtype)}
 
 
 #: The stay probability ``ρ`` of the first descent's model with independent frames (:func:`_independent_mode`).
@@ -533,7 +533,7 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
     def twin(values) -> int | None:  # the found mode whose every bias (and coupling) is within the separation
         def close(mode) -> bool:
             near = np.all(np.linalg.norm(np.asarray(values["bias"]) - np.asarray(mode["bias"]), axis=-1) < separation)
-            apart = jax.nn.sigmoid(values["coupling"]) - jax.nn.sigmoid(mode["coupling"]) if trials else 0.0
+            apart = jnp.exp(values["coupling"]) - jnp.exp(mode["coupling"]) if trials else 0.0
             return bool(near) and bool(np.all(np.abs(np.asarray(apart)) < rivals.COUPLING_SEPARATION))
         return next((m for m, mode in enumerate(modes) if close(mode[0])), None)
 
@@ -541,9 +541,10 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
         bias = base["bias"]
         if axis is None:
             return {**base, "bias": bias.at[person].add(jnp.asarray(delta, bias.dtype))}
-        # as rivals.coupling_trial, for one person in the unconstrained values (the coupling a logit): λ'/λ = e^{−shift}
-        bias = bias.at[person, axis].multiply(math.exp(-shift)).at[person].add(jnp.asarray(delta, bias.dtype))
-        return {**base, "bias": bias, "coupling": base["coupling"].at[person, axis].add(shift)}
+        # as rivals.coupling_trial, for one person in the unconstrained values (the coupling's log)
+        moved, ratio = rivals.coupling_move(jnp.exp(base["coupling"][person, axis]), shift)
+        bias = bias.at[person, axis].multiply(ratio).at[person].add(jnp.asarray(delta, bias.dtype))
+        return {**base, "bias": bias, "coupling": base["coupling"].at[person, axis].set(jnp.log(moved))}
 
     evidence, inverse = score(unconstrained) if scored is None else scored
     modes = [(unconstrained, evidence, inverse)]  # (values, evidence, inverse Hessian)
@@ -612,7 +613,7 @@ def _search_modes(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, w
     start_bias = np.asarray(unconstrained["bias"])
     moved = np.linalg.norm(np.asarray(best["bias"]) - start_bias, axis=-1) >= separation
     if trials:  # or whose couplings it moved to a rival's
-        moved |= np.any(np.abs(np.asarray(jax.nn.sigmoid(best["coupling"]) - jax.nn.sigmoid(unconstrained["coupling"])))
+        moved |= np.any(np.abs(np.asarray(jnp.exp(best["coupling"]) - jnp.exp(unconstrained["coupling"])))
                         >= rivals.COUPLING_SEPARATION, axis=-1)
     moved = tuple(int(i) for i in np.flatnonzero(moved))
     search = rivals.ModeSearch(best, tuple(alternatives), moved, tried, float(best_evidence), tuple(starts))

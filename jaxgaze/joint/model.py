@@ -91,8 +91,8 @@ __all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "head_gaz
            "marginal_log_likelihood", "target_marginals", "target_log_prior", "model_params", "concurrence_locations", "eye_positions"]
 
 #: The model's sites on the positive half-line and in (0, 1): numpyro samples them as logs and logits.
-POSITIVE_SITES = ("cone_width", "head_lag", "tilt_width_ratio")
-UNIT_SITES = ("stay", "calibration_outlier_share", "coupling")
+POSITIVE_SITES = ("cone_width", "head_lag", "tilt_width_ratio", "coupling")
+UNIT_SITES = ("stay", "calibration_outlier_share")
 #: The largest share ``c`` of the cone's variance a fixation's spot may hold (:func:`held_cone_share`):
 #: with ``c → 1`` and ``ρ → 1`` a block is one fixation whose spot may lie anywhere, only its first frame pays for the
 #: cone's width, and NUTS ran away to widths of 10⁸ rad; with ``c ≤ 0.8`` every frame pays for a fifth of it.
@@ -135,8 +135,11 @@ class JointPrior(NamedTuple):
             forward direction, a Fisher cone with ``κ = 1/σ_e²``.
         stay_concentration: ``(a, b)`` of the Beta prior of ``ρ``, the probability that a
             person keeps the previous frame's target.
-        coupling_concentration: ``(a, b)`` of the Beta prior of ``κ``, the share of the line
-            of sight the head turns (head pose only; most people turn 0.3–1).
+        coupling_median, coupling_log_sd: the log-normal prior of ``κ``, the share of the line of sight the
+            head turns (head pose only; most people turn 0.3–1: the prior's 90% lie in 0.31–1.16). Sampled in
+            ``log κ``, in which the tilt's near-symmetry (every tilt coupling, the tilt widths, the biases' tilts and
+            the concurrences' heights scaled together) is a straight line; with a Beta prior and a logit it
+            curved, and fits of small groups mixed badly (RESULTS, 2026-12-07).
         head_lag_scale: scale (seconds) of the half-normal prior of ``τ``, the head's lag
             behind the eyes (head pose only).
         held_scale: a fixation's spot (:func:`_held_spot`) holding a share ``c`` of the cone's
@@ -171,7 +174,8 @@ class JointPrior(NamedTuple):
     eye_offset_scale: float = 0.1
     elsewhere_spread: float = 0.6
     stay_concentration: tuple[float, float] = (2.0, 1.0)
-    coupling_concentration: tuple[float, float] = (3.0, 2.0)
+    coupling_median: float = 0.6
+    coupling_log_sd: float = 0.4
     head_lag_scale: float = 0.4
     held_scale: float | None = 1.0
     coupling_shape_scale: float | None = None
@@ -832,8 +836,8 @@ def joint_model(
         params["locations"] = location_centres
 
     if head_motion.shape[-1]:
-        params["coupling"] = numpyro.sample("coupling", dist.Beta(
-            *(jnp.full((P, 2), c, dtype) for c in prior.coupling_concentration)).to_event(2))
+        params["coupling"] = numpyro.sample("coupling", dist.LogNormal(
+            jnp.full((P, 2), math.log(prior.coupling_median), dtype), prior.coupling_log_sd).to_event(2))
         params["head_lag"] = numpyro.sample("head_lag", dist.HalfNormal(
             jnp.full((P,), prior.head_lag_scale, dtype)).to_event(1))
         if prior.tilt_width_ratio_log_sd is not None:

@@ -52,7 +52,7 @@ from jaxgaze.joint.model import (
     candidate_log_probabilities,
 )
 
-__all__ = ["Alternative", "ModeSearch", "bias_profile", "scan_offsets", "profile_rivals", "coupling_trial",
+__all__ = ["Alternative", "ModeSearch", "bias_profile", "scan_offsets", "profile_rivals", "coupling_trial", "coupling_move",
            "coupling_rivals", "SCAN_RADIUS_DEG", "SCAN_STEP_DEG", "MIN_SEPARATION_DEG", "PROFILE_MARGIN", "MAX_RIVALS",
            "MAX_ROUNDS", "AMBIGUITY_MARGIN", "COUPLING_SHIFTS", "COUPLING_SCAN_STEP_DEG",
            "COUPLING_SEPARATION"]
@@ -73,8 +73,9 @@ MAX_ROUNDS = 3
 AMBIGUITY_MARGIN = math.log(20.0)
 #: Cone-width factors the profile takes the best of at each offset.
 _WIDTH_FACTORS = (0.5, 1.0, 2.0)
-#: Head pose only: the moves of one coupling (logit of ``κ``, one axis at a time) whose bias profiles are scanned for
-#: a rival ``(κ, bias)`` mode; ±0.6 moves ``κ = 0.55`` to 0.41 or 0.69.
+#: Head pose only: the moves of one coupling (one axis at a time; the gain ``λ = 1/κ − 1`` times ``e^{−shift}``, a shift
+#: of ``logit κ`` where ``κ < 1``) whose bias profiles are scanned for a rival ``(κ, bias)`` mode; ±0.6 moves
+#: ``κ = 0.55`` to 0.41 or 0.69.
 COUPLING_SHIFTS = (-0.9, -0.6, 0.6, 0.9)
 #: The step (degrees) of the disc scanned at each coupling's move: coarser than a bias rival's, as each move costs a
 #: profile (4°: 441 offsets, 0.11 s on a 6-person minute, against 0.39 s at 2°); the refinement does the rest.
@@ -190,15 +191,24 @@ def profile_rivals(profile: np.ndarray, offsets: np.ndarray, n: int, candidates:
     return out
 
 
+def coupling_move(kappa, shift: float):
+    """``(κ', λ'/λ)``: the coupling whose gain ``λ = 1/κ − 1`` is ``λ e^{−shift}`` (for ``κ < 1`` a shift of
+    ``logit κ``; a head that overshoots, ``κ > 1``, at most to ``κ' = 2``), and the factor that keeps the bias
+    ``λ (ref − rest)`` on the same rest direction."""
+    gain = 1.0 / kappa - 1.0
+    moved = jnp.maximum(gain * math.exp(-shift), -0.5)
+    ratio = jnp.where(jnp.abs(gain) > 1e-6, moved / jnp.where(jnp.abs(gain) > 1e-6, gain, 1.0), 1.0)
+    return 1.0 / (1.0 + moved), ratio
+
+
 def coupling_trial(params: dict, axis: int, shift: float) -> dict:
-    """``params`` with every person's coupling on ``axis`` moved by ``shift`` on the logit scale, and the bias on that
-    axis scaled by ``λ'/λ = e^{−shift}`` (``λ = 1/κ − 1 = e^{−logit κ}``): the bias is ``λ (ref − rest)``, so the rest
-    direction stays put."""
+    """``params`` with every person's coupling on ``axis`` moved by :func:`coupling_move`, and the bias on that axis
+    scaled by ``λ'/λ``, so the rest direction stays put."""
     kappa = params["coupling"]
-    moved = jax.nn.sigmoid(jnp.log(kappa) - jnp.log1p(-kappa) + shift)
+    moved, ratio = coupling_move(kappa, shift)
     keep = jnp.arange(kappa.shape[-1]) != axis
     return {**params, "coupling": jnp.where(keep, kappa, moved),
-            "bias": params["bias"] * jnp.where(keep, 1.0, math.exp(-shift))}
+            "bias": params["bias"] * jnp.where(keep, 1.0, ratio)}
 
 
 def coupling_rivals(profiles: np.ndarray, trials: list[tuple[int, float]], offsets: np.ndarray,

@@ -227,20 +227,20 @@ def test_frame_scores_are_finite_for_someone_alone(x64):
         np.testing.assert_allclose(np.asarray(forward[site]), np.asarray(reverse[site]), rtol=1e-9, atol=1e-12)
 
 
-def test_widening_spreads_the_couplings_logits_about_their_mean():
-    """Each coupling's logits move ``factor`` times further from their mean over all chains; other sites are kept, and
-    a float32 draw that rounded to 1 stays finite."""
+def test_widening_spreads_the_couplings_logs_about_their_mean():
+    """Each coupling's ``log κ`` (the sampled coordinate) moves ``factor`` times further from its mean over all
+    chains, its mean kept; other sites are kept, and a head that overshoots (``κ > 1``) stays positive."""
     rng = np.random.default_rng(0)
-    kappa = (1 / (1 + np.exp(-rng.normal(0.3, 0.1, (2, 50, 3, 2))))).astype(np.float32)
-    kappa[0, 0, 0, 0] = 1.0
+    kappa = np.exp(rng.normal(-0.3, 0.2, (2, 50, 3, 2))).astype(np.float32)
+    kappa[0, 0, 0, 0] = 1.4
     draws = {"coupling": kappa, "bias": rng.normal(size=(2, 50, 3, 2))}
     factor = np.array([[1.0, 2.0], [1.5, 1.0], [3.0, 1.2]])
     out = _widen(draws, factor)
     assert out["bias"] is draws["bias"] and out["coupling"].dtype == np.float32
-    assert np.all(np.isfinite(out["coupling"])) and np.all((out["coupling"] > 0) & (out["coupling"] <= 1))
-    logit = lambda k: np.log(k) - np.log1p(-k)  # noqa: E731
-    before, after = logit(kappa[:, 1:].astype(float)), logit(out["coupling"][:, 1:].astype(float))
+    assert np.all(np.isfinite(out["coupling"])) and np.all(out["coupling"] > 0)
+    before, after = np.log(kappa.astype(float)), np.log(out["coupling"].astype(float))
     np.testing.assert_allclose(after.std(axis=(0, 1)), factor * before.std(axis=(0, 1)), rtol=1e-4)
+    np.testing.assert_allclose(after.mean(axis=(0, 1)), before.mean(axis=(0, 1)), atol=1e-5)
 
 
 def test_the_long_run_variance_of_a_moving_average():
@@ -287,9 +287,10 @@ def test_head_gaze_angles_invert_a_partial_head_turn():
 
 
 def test_the_rival_search_reads_couplings_and_lags_in_their_own_units():
-    """numpyro samples κ as a logit and τ as a log; the rival search's profiles read the model's own values."""
+    """numpyro samples κ and τ as logs (κ may exceed 1) and ρ as a logit; the rival search's profiles read the model's
+    own values."""
     values = {"bias": np.array([[0.1, -0.05]]), "cone_width": np.array([0.05]), "stay": np.array(0.7),
-              "alpha_person": np.array(0.3), "coupling": np.array([[0.6, 0.4]]), "head_lag": np.array([0.2])}
+              "alpha_person": np.array(0.3), "coupling": np.array([[0.6, 1.2]]), "head_lag": np.array([0.2])}
     back = rivals.constrained(_unconstrained(values))
     for site, value in values.items():
         np.testing.assert_allclose(np.asarray(back[site]), value, rtol=1e-6, err_msg=site)
@@ -498,6 +499,13 @@ def test_coupling_trial_keeps_the_rest_direction():
                                atol=1e-6)
     np.testing.assert_allclose(np.asarray(moved["bias"]) / (1 / kappa2 - 1), np.asarray(params["bias"]) / (1 / kappa - 1),
                                rtol=1e-6)
+    # a head that overshoots (κ > 1, λ < 0): the gain scaled alike, the rest direction kept, κ' at most 2
+    over = {"coupling": jnp.array([[1.2, 0.5], [1.8, 0.5]]), "bias": jnp.array([[-0.05, 0.1], [-0.1, 0.1]])}
+    moved = rivals.coupling_trial(over, 0, -0.6)
+    kappa, kappa2 = np.asarray(over["coupling"])[:, 0], np.asarray(moved["coupling"])[:, 0]
+    assert kappa2[0] == pytest.approx(1 / (1 + (1 / 1.2 - 1) * math.exp(0.6)), rel=1e-6) and kappa2[1] == 2.0
+    np.testing.assert_allclose(np.asarray(moved["bias"])[:, 0] / (1 / kappa2 - 1),
+                               np.asarray(over["bias"])[:, 0] / (1 / kappa - 1), rtol=1e-5)
 
 
 def test_coupling_rivals_must_win_the_profile_outright():
@@ -553,29 +561,35 @@ def test_the_evidence_of_a_point_short_of_the_mode_is_predicted_at_the_mode(grou
     assert _predicted_evidence(evidence, inverse, 1e3 * gradient) == float(evidence) + _MAX_PREDICTED_GAIN
 
 
-def test_a_wrong_coupling_mode_is_found_and_left(group, group_mode, monkeypatch):
-    """Person 1 (κ 0.73) planted at a yaw coupling of 0.4, the rest direction kept, settles in a mode at 0.55: the
-    bias rivals hold κ, so they cannot leave it. The couplings' moves can: a move's profile beats the mode's, and
-    its refinement goes back to the truth (as on scene 6 of the experiment with ``--tracker-tilt-factor 2.5``: a
-    person 15.6° off at 24 posterior sd, mended)."""
+def test_a_wrong_coupling_is_found_and_left(group, group_mode, monkeypatch):
+    """Person 1 (κ 0.73) planted at a yaw coupling of 0.4, the rest direction kept: sampled as a logit, the descent
+    settled in a mode of its own at 0.55; in ``log κ`` it comes back to the truth. Planted at 1.3 (a head that
+    overshoots), the descent stops at 0.84, where the bias rivals, holding ``κ``, cannot move it; the couplings' moves
+    can: a move's profile beats the point's and its refinement reaches the truth (as on scene 6 of the experiment
+    with ``--tracker-tilt-factor 2.5``: a person 15.6° off at 24 posterior sd, mended)."""
     scene, data = group
     truth = np.asarray(scene.head_fraction)
     arrays, plain, values = group_mode
-    np.testing.assert_array_less(np.abs(np.asarray(jax.nn.sigmoid(values["coupling"][:, 0])) - truth), 0.05)
+    np.testing.assert_array_less(np.abs(np.exp(np.asarray(values["coupling"][:, 0])) - truth), 0.05)
 
-    person, wrong = 1, 0.4
-    kappa = jax.nn.sigmoid(values["coupling"][person, 0])
-    planted = {**values, "coupling": values["coupling"].at[person, 0].set(math.log(wrong / (1 - wrong))),
-               "bias": values["bias"].at[person, 0].multiply((1 / wrong - 1) / (1 / kappa - 1))}
-    settled = _to_mode(planted, arrays, plain)
-    assert float(jax.nn.sigmoid(settled["coupling"][person, 0])) < 0.6  # a mode of its own
+    person = 1
+    kappa = jnp.exp(values["coupling"][person, 0])
+
+    def planted(wrong):
+        return {**values, "coupling": values["coupling"].at[person, 0].set(math.log(wrong)),
+                "bias": values["bias"].at[person, 0].multiply((1 / wrong - 1) / (1 / kappa - 1))}
+
+    back = _to_mode(planted(0.4), arrays, plain)
+    assert abs(float(jnp.exp(back["coupling"][person, 0])) - truth[person]) < 0.05  # no mode at 0.55 in log κ
+    settled = _to_mode(planted(1.3), arrays, plain)
+    assert float(jnp.exp(settled["coupling"][person, 0])) > 0.8
 
     search, _ = _search_modes(settled, arrays, plain, (), False)
     assert person in search.moved
-    assert abs(float(jax.nn.sigmoid(search.start["coupling"][person, 0])) - truth[person]) < 0.03
+    assert abs(float(jnp.exp(search.start["coupling"][person, 0])) - truth[person]) < 0.03
     monkeypatch.setattr(rivals, "COUPLING_SHIFTS", ())
     left, _ = _search_modes(settled, arrays, plain, (), False)
-    assert person not in left.moved and float(jax.nn.sigmoid(left.start["coupling"][person, 0])) < 0.6
+    assert person not in left.moved and float(jnp.exp(left.start["coupling"][person, 0])) > 0.8
 
 
 def test_coupling_profile_peaks_near_each_persons_coupling(group):
