@@ -136,7 +136,9 @@ class JointPrior(NamedTuple):
         stay_concentration: ``(a, b)`` of the Beta prior of ``ρ``, the probability that a
             person keeps the previous frame's target.
         coupling_median, coupling_log_sd: the log-normal prior of ``κ``, the share of the line of sight the
-            head turns (head pose only; most people turn 0.3–1: the prior's 90% lie in 0.31–1.16). Sampled in
+            head turns (head pose only; most people turn 0.3–1: the prior's 90% lie in 0.39–1.25, its density peaks at
+            0.62, near the Beta(3, 2) of before; median 0.6 and log sd 0.4, peak 0.51, left the tilt couplings of a
+            tracker reading pitch badly too low, RESULTS 2026-12-07). Sampled in
             ``log κ``, in which the tilt's near-symmetry (every tilt coupling, the tilt widths, the biases' tilts and
             the concurrences' heights scaled together) is a straight line; with a Beta prior and a logit it
             curved, and fits of small groups mixed badly (RESULTS, 2026-12-07).
@@ -174,8 +176,8 @@ class JointPrior(NamedTuple):
     eye_offset_scale: float = 0.1
     elsewhere_spread: float = 0.6
     stay_concentration: tuple[float, float] = (2.0, 1.0)
-    coupling_median: float = 0.6
-    coupling_log_sd: float = 0.4
+    coupling_median: float = 0.7
+    coupling_log_sd: float = 0.35
     head_lag_scale: float = 0.4
     held_scale: float | None = 1.0
     coupling_shape_scale: float | None = None
