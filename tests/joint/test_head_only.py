@@ -563,10 +563,10 @@ def test_the_evidence_of_a_point_short_of_the_mode_is_predicted_at_the_mode(grou
 
 def test_a_wrong_coupling_is_found_and_left(group, group_mode, monkeypatch):
     """Person 1 (κ 0.73) planted at a yaw coupling of 0.4, the rest direction kept: sampled as a logit, the descent
-    settled in a mode of its own at 0.55; in ``log κ`` it comes back to the truth (descent and polish). Planted at 1.3 (a head that
-    overshoots), the descent stops at 0.90, where the bias rivals, holding ``κ``, cannot move it; the couplings' moves
-    can: a move's profile beats the point's and its refinement reaches the truth (as on scene 6 of the experiment
-    with ``--tracker-tilt-factor 2.5``: a person 15.6° off at 24 posterior sd, mended)."""
+    settled in a mode of its own at 0.55; in ``log κ`` the descent and the polish bring it back to the truth. Planted
+    at 1.3 (a head that overshoots), the descent stops at 0.90, where the bias rivals, holding ``κ``, cannot move it;
+    the couplings' moves can: a move's profile beats the point's and its refinement reaches the truth (as on scene 6
+    of the experiment with ``--tracker-tilt-factor 2.5``: a person 15.6° off at 24 posterior sd, mended)."""
     scene, data = group
     truth = np.asarray(scene.head_fraction)
     arrays, plain, values = group_mode
@@ -579,8 +579,8 @@ def test_a_wrong_coupling_is_found_and_left(group, group_mode, monkeypatch):
         return {**values, "coupling": values["coupling"].at[person, 0].set(math.log(wrong)),
                 "bias": values["bias"].at[person, 0].multiply((1 / wrong - 1) / (1 / kappa - 1))}
 
-    # no mode at 0.55 in log κ: the descent stops short along the ridge (0.67, 230 nats above the mode), and the
-    # polish the fit runs next (Newton's steps with the Laplace Hessian) brings it back to the truth
+    # no mode at 0.55 in log κ: the descent runs out of its 300 steps along the ridge (at 0.67, 230 nats above the
+    # mode), and the polish the fit runs next (chord and Newton's steps) brings it back to the truth
     back = _to_mode(planted(0.4), arrays, plain)
     _, inverse, _, _ = _laplace_parts(back, arrays, plain)
     back = _polish_mode(ModeSearch(back, (), (), 0, 0.0), inverse, arrays, plain)[0].start
