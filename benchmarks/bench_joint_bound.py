@@ -2,10 +2,11 @@
 with its gaze measured, scene by scene, as the ratio of the two fits' times.
 
 The scenes are those of ``experiments/joint_head_only.py`` (seed 38, 60 s): scene ``i`` is
-``jax.random.split(key(38), 30)[i]``, and the default list holds the eight of its 30 with 6 people. Each process fits
-its first scene twice and reports the second call, so that every reported fit reuses compiled programs; a scene whose
-concurrence count or spot choice the process meets for the first time still compiles (or reads from the persistent
-cache) those programs, a noise of a few seconds (``benchmarks/RESULTS.md``, 2026-12-07). ``--spot`` picks the models:
+``jax.random.split(key(38), 30)[i]``, and the default list holds the eight of its 30 with 6 people. Every scene is
+fitted twice on each input and the second call reported, so that no reported fit compiles: a scene whose concurrence
+count or spot choice the process met for the first time compiled (or read from the persistent cache) those programs,
+and single scenes came out up to twice as slow as their second call (``benchmarks/RESULTS.md``, 2026-12-07).
+``--spot`` picks the models:
 
 - ``defaults``: each fit as ``fit_joint`` chooses (the spot kept where its Bayes factor exceeds 3: head pose only
   keeps it on every such scene, the gaze measured on few);
@@ -65,12 +66,10 @@ def main() -> None:
     if args.spot == "both":
         infer.SPOT_MIN_LOG_FACTOR = -math.inf
     rows = []
-    for n, index in enumerate([scenes[0]] + scenes):
+    for index in scenes:
         people, head, gaze, key = _inputs(index)
         (t_head, spot_head, res_head), (t_gaze, spot_gaze, res_gaze) = (
-            _timed(data, key, prior, args.warmup, args.draws) for data in (head, gaze))
-        if n == 0:
-            continue  # the first scene's first call compiles
+            [_timed(data, key, prior, args.warmup, args.draws) for _ in range(2)][1] for data in (head, gaze))
         rows.append((t_head, t_gaze))
         print(f"scene {index} ({people} people): head pose only {t_head:.1f} s (spot {spot_head}, {res_head}), "
               f"gaze measured {t_gaze:.1f} s (spot {spot_gaze}, {res_gaze}): {t_head / t_gaze:.2f}x", flush=True)
