@@ -138,9 +138,9 @@ class JointPrior(NamedTuple):
         coupling_median, coupling_log_sd: the log-normal prior of ``κ``, the share of the line of sight the
             head turns (head pose only; most people turn 0.3–1: the prior's 90% lie in 0.39–1.25, its density peaks
             at 0.62; a peak of 0.51 left the tilt couplings of a tracker reading pitch badly too low, RESULTS
-            2026-12-07). Sampled in ``log κ``, in which the tilt's near-symmetry (every tilt coupling, the tilt widths, the biases' tilts and
-            the concurrences' heights scaled together) is a straight line; with a Beta prior and a logit it
-            curved, and fits of small groups mixed badly (RESULTS, 2026-12-07).
+            2026-12-07). Sampled in ``log κ``, in which the tilt's near-symmetry (every tilt coupling, the tilt
+            widths, the biases' tilts and the concurrences' heights scaled together) is a straight line; with a Beta
+            prior and a logit it curved, and fits of small groups mixed badly (RESULTS, 2026-12-07).
         head_lag_scale: scale (seconds) of the half-normal prior of ``τ``, the head's lag
             behind the eyes (head pose only).
         held_scale: a fixation's spot (:func:`_held_spot`) holding a share ``c`` of the cone's
