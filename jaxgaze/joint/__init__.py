@@ -11,6 +11,7 @@ from its module (``from jaxgaze.joint.model import joint_model``).
 | Siegfried Sec. 2, Park Sec. 3.1: the recording, frames and units checked | ``joint_data``, ``JointData`` | ``joint/data.py`` |
 | Park eq. 3 for directions, Siegfried eq. 1 and Sec. 3.2: the model, the target chain summed out | ``model.joint_model``, ``model.marginal_log_likelihood``, ``target_marginals`` | ``joint/model.py`` |
 | Rabiner 1989, eq. 24–25 in adjoint form: the gradient of the chain's forward pass, written out | ``model._log_normalisers`` | ``joint/model.py`` |
+| Siegfried et al. 2017, Sec. 2–3: the measured angles' density, the cone's on the sphere times the area element ``abs(cos(θ + b_θ))`` of ``Φ`` | ``model.measured_gaze_log_jacobian`` | ``joint/model.py`` |
 | Park eq. 3 with a fixation's spot (issue 37): the residuals of one fixation share an offset ``N(0, c h²)`` | ``model._held_spot``, ``JointPrior.held_scale``, ``model.held_cone_share`` | ``joint/model.py`` |
 | Kass & Raftery 1995, eq. 1: the spot kept where its Bayes factor exceeds 3 | ``infer._choose_spot``, ``infer._spot_log_bayes_factor`` | ``joint/infer.py`` |
 | Stiefelhagen & Zhu 2002, Ba & Odobez 2009, Yücel et al. 2013 (linear): head pose only, ``κ (gaze − rest) = head + τ ḣ − rest`` | ``model.head_gaze_angles``, ``model.head_log_jacobian``, ``joint_data(…, gaze_angles=None)`` | ``joint/model.py``, ``joint/data.py`` |

@@ -87,7 +87,7 @@ from jaxgaze.calibration.posterior import calibration_log_likelihood
 from jaxgaze.cone import cone_direction_log_density
 from jaxgaze.geometry import direction_to_yaw_pitch, unit, wrap_angle
 
-__all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "head_gaze_angles", "head_log_jacobian", "coupling_shape", "people_head_angles", "gaze_angles", "candidate_log_probabilities",
+__all__ = ["BLOCK_FRAMES", "JointPrior", "ModelArrays", "joint_model", "head_gaze_angles", "head_log_jacobian", "measured_gaze_log_jacobian", "coupling_shape", "people_head_angles", "gaze_angles", "candidate_log_probabilities",
            "marginal_log_likelihood", "target_marginals", "target_log_prior", "model_params", "concurrence_locations", "eye_positions"]
 
 #: The model's sites on the positive half-line and in (0, 1): numpyro samples them as logs and logits.
@@ -307,9 +307,30 @@ def head_log_jacobian(head_motion: Float[Array, "T P 5"], coupling: Float[Array,
     return lag + jnp.sum(jnp.log(jnp.maximum(slope, 1e-3)), axis=-1)
 
 
-def _jacobian(params: dict, head_motion) -> Float[Array, "T P"]:
-    """:func:`head_log_jacobian` of the parameters (head pose only), and ``−log r`` of the tilt's width ratio."""
-    jacobian = head_log_jacobian(head_motion, params["coupling"], params["head_lag"], params.get("coupling_shape"))
+def measured_gaze_log_jacobian(gaze_angles: Float[Array, "T P 2"], bias: Float[Array, "P 2"],
+                               wearer_index: Int[Array, " W"]) -> Float[Array, "T P"]:
+    """``log |cos(θ + b_θ)|`` per frame: the area element of ``Φ`` (Siegfried et al. 2017, Sec. 2–3) at the gaze's
+    tilt, so that the cone's density of the direction ``Φ(g + b)`` on the sphere becomes a density of the measured
+    angles ``g`` (0 for the wearers of head-mounted cameras, whose angles are the primary ray's, not data).
+
+    Without it a bias that sends someone's gaze to the pole (``θ + b_θ`` near ±90°) squeezes the yaw's scatter out of
+    the directions for free: on one adversarial conversation a converged descent sent a person's bias 98.7° off, to
+    ``θ + b_θ ≈ 89°``, and explained every frame as one glance elsewhere held, 54 nats above the truth's mode
+    (``benchmarks/RESULTS.md``). The cosine is floored at 10⁻⁶.
+    """
+    cosine = jnp.abs(jnp.cos(gaze_angles[..., 1] + bias[:, 1]))
+    measured = jnp.ones(bias.shape[0], bool).at[wearer_index].set(False)
+    return jnp.where(measured, jnp.log(jnp.maximum(cosine, 1e-6)), 0.0)
+
+
+def _jacobian(params: dict, arrays: ModelArrays) -> Float[Array, "T P"]:
+    """Each frame's log Jacobian from the density the chain scores to the data's: head pose only,
+    :func:`head_log_jacobian` of the parameters and ``−log r`` of the tilt's width ratio; the gaze measured,
+    :func:`measured_gaze_log_jacobian`."""
+    if not arrays.head_motion.shape[-1]:
+        return measured_gaze_log_jacobian(arrays.gaze_angles, params["bias"], arrays.wearer_index)
+    jacobian = head_log_jacobian(arrays.head_motion, params["coupling"], params["head_lag"],
+                                 params.get("coupling_shape"))
     if "tilt_width_ratio" in params:
         jacobian = jacobian - jnp.log(params["tilt_width_ratio"])
     return jacobian
@@ -732,23 +753,21 @@ def marginal_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior
     """``log p(g_i | block)`` with the target chain summed out, per block of :data:`BLOCK_FRAMES` frames and person (Park et al. 2012, eq. 3; Siegfried et al. 2017, Sec. 3.2).
 
     ``params`` as :func:`candidate_log_probabilities`, plus ``stay`` (``ρ``). The
-    sum over blocks is the log likelihood of the recording (head pose only: of the
-    head's angles, with :func:`head_log_jacobian`).
+    sum over blocks is the log likelihood of the recording: of the measured gaze angles, with
+    :func:`measured_gaze_log_jacobian`; head pose only, of the head's angles, with :func:`head_log_jacobian`.
     """
     terms = _candidate_terms(params, arrays, prior)
     index, valid = _blocks(arrays.present.shape[0])
     log_lik = _blocked_log_likelihood(terms, arrays.present, params["stay"], (index, valid),
                                       spot_variance=_spot_variance(params))
-    if not arrays.head_motion.shape[-1]:
-        return log_lik
-    jacobian = _jacobian(params, arrays.head_motion)[index]  # (B, L, P)
+    jacobian = _jacobian(params, arrays)[index]  # (B, L, P)
     return log_lik + jnp.sum(jnp.where(arrays.present[index] & valid[..., None], jacobian, 0.0), axis=1)
 
 
 def frame_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior = JointPrior()) -> Float[Array, "T P"]:
     """``log p(g_ti | g_{<t, i})`` per frame and person (the chain restarting at each block): the terms that
-    :func:`marginal_log_likelihood` sums, in the order of the frames (0 where the gazer is absent; head pose only
-    with :func:`head_log_jacobian`). Their gradients are the scores of a time series, whose correlation from frame
+    :func:`marginal_log_likelihood` sums, in the order of the frames (0 where the gazer is absent; with
+    :func:`measured_gaze_log_jacobian`, head pose only :func:`head_log_jacobian`). Their gradients are the scores of a time series, whose correlation from frame
     to frame the model's own curvature does not see (:func:`~jaxgaze.joint.infer.fit_joint`'s coupling intervals)."""
     T = arrays.present.shape[0]
     index, valid = _blocks(T)
@@ -756,9 +775,7 @@ def frame_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior = 
     observed = arrays.present[index] & valid[..., None]
     per_frame = _chain_log_likelihood(terms, observed, params["stay"], spot_variance=_spot_variance(params),
                                       per_frame=True)
-    if arrays.head_motion.shape[-1]:
-        per_frame = per_frame + _jacobian(params, arrays.head_motion)[index]
-    per_frame = jnp.where(observed, per_frame, 0.0)
+    per_frame = jnp.where(observed, per_frame + _jacobian(params, arrays)[index], 0.0)
     return per_frame.reshape((-1,) + per_frame.shape[2:])[:T]
 
 
@@ -868,7 +885,6 @@ def joint_model(
         terms = jax.tree.map(lambda a: a.reshape(index.shape + a.shape[1:]), _candidate_terms(params, local, prior))
         observed = local.present.reshape(index.shape + (P,)) & valid[..., None]
         log_lik = jnp.sum(_chain_log_likelihood(terms, observed, stay, spot_variance=_spot_variance(params)), axis=-1)
-        if head_motion.shape[-1]:
-            jacobian = _jacobian(params, local.head_motion)
-            log_lik = log_lik + jnp.sum(jnp.where(observed, jacobian.reshape(observed.shape), 0.0), axis=(1, 2))
+        jacobian = _jacobian(params, local).reshape(observed.shape)
+        log_lik = log_lik + jnp.sum(jnp.where(observed, jacobian, 0.0), axis=(1, 2))
         numpyro.factor("gaze", log_lik)

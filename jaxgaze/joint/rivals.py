@@ -139,14 +139,15 @@ def bias_profile(params: dict, arrays: ModelArrays, prior: JointPrior, offsets) 
     """``(G, P)``: each person's log likelihood with independent frames plus bias log prior at ``b + δ_g``.
 
     ``params`` as :func:`~jaxgaze.joint.model.candidate_log_probabilities`; at each offset the cone
-    width is the best of ``h × (0.5, 1, 2)`` per person. Head pose only, the likelihood is the head's: with
+    width is the best of ``h × (0.5, 1, 2)`` per person. The likelihood is the data's: head pose only with
     :func:`~jaxgaze.joint.model.head_log_jacobian` and the tilt's width ratio (the same at every offset), so that
-    profiles at different couplings compare (:func:`coupling_rivals`).
+    profiles at different couplings compare (:func:`coupling_rivals`); the gaze measured with
+    :func:`~jaxgaze.joint.model.measured_gaze_log_jacobian` at each offset's bias.
     """
     present = arrays.present
-    jacobian = 0.0
-    if arrays.head_motion.shape[-1]:
-        jacobian = jnp.sum(jnp.where(present, _jacobian(params, arrays.head_motion), 0.0), axis=0)  # (P,)
+    head_only = bool(arrays.head_motion.shape[-1])
+    if head_only:  # the head's Jacobian is the same at every bias
+        jacobian = jnp.sum(jnp.where(present, _jacobian(params, arrays), 0.0), axis=0)  # (P,)
 
     def one(delta):
         bias = params["bias"] + delta
@@ -158,7 +159,9 @@ def bias_profile(params: dict, arrays: ModelArrays, prior: JointPrior, offsets) 
             return jnp.sum(jnp.where(present, frame, 0.0), axis=0)
 
         best = jnp.max(jnp.stack([at(f) for f in _WIDTH_FACTORS]), axis=0)
-        return best + prior_term + jacobian
+        moved_jacobian = jacobian if head_only else jnp.sum(
+            jnp.where(present, _jacobian({**params, "bias": bias}, arrays), 0.0), axis=0)
+        return best + prior_term + moved_jacobian
 
     return jax.lax.map(one, jnp.asarray(offsets, params["bias"].dtype), batch_size=16)
 

@@ -106,6 +106,7 @@ def _brute_force(data, params):
 
     A glance elsewhere held from frame ``t − 1`` scatters around the previous direction; with ``held_cone_share``
     in ``params``, a person or concurrence held from ``t − 1`` scatters around the fixation's spot (:func:`_held_spot`).
+    The densities are of the measured angles: the cones' on the sphere times each frame's area element ``|cos θ|``.
     """
     T, P = data.present.shape
     terms, rays, log_fisher = _per_gazer(data, params)
@@ -136,7 +137,14 @@ def _brute_force(data, params):
         for t in range(T):
             for c in names:
                 marginals[t, i, c] = sum(math.exp(w - norm) for seq, w in weights.items() if seq[t] == c)
-    return total, terms, marginals
+    return total + _angles_log_jacobian(data, params), terms, marginals
+
+
+def _angles_log_jacobian(data, params):
+    """``Σ log |cos(θ + b_θ)|`` over the observed frames: the measured angles' area element, which turns the cones'
+    densities on the sphere into densities of the angles."""
+    tilt = np.nan_to_num(data.gaze_angles[..., 1]) + np.asarray(params["bias"])[:, 1]
+    return float(np.sum(np.where(data.present, np.log(np.abs(np.cos(tilt))), 0.0)))
 
 
 def _column(c, P):
@@ -148,6 +156,27 @@ def _column(c, P):
 _marginal_log_likelihood = jax.jit(marginal_log_likelihood)
 _candidate_log_probabilities = jax.jit(candidate_log_probabilities)
 _target_marginals = jax.jit(target_marginals)
+
+
+def test_a_frames_likelihood_is_a_density_of_the_measured_angles(x64):
+    """One frame's likelihood, a density of the measured angles ``(yaw, tilt)``, integrates to 1 over them (a
+    Riemann sum over a 1° grid, one frame a point): the cones' densities on the sphere times the area element
+    ``|cos θ|`` (:func:`~jaxgaze.joint.model.measured_gaze_log_jacobian`). Without it the integral is
+    ``E[1/|cos θ|]``, about 1.3 for a neighbour 40° up."""
+    step = math.radians(1.0)
+    yaw, tilt = np.meshgrid(np.arange(-180, 180) + 0.5, np.arange(-90, 90) + 0.5, indexing="ij")
+    g = np.radians(np.stack([yaw.ravel(), tilt.ravel()], axis=-1))  # (T, 2), every grid point a frame
+    T = g.shape[0]
+    eyes = np.broadcast_to(np.array([[0.0, 0.0, 1.2], [1.0, 0.3, 1.2 + math.tan(math.radians(40.0))]]), (T, 2, 3))
+    R = np.broadcast_to(np.eye(3), (T, 2, 3, 3))
+    data = joint_data(eyes, R, np.stack([g, np.zeros_like(g)], axis=1), measurement_scale=np.zeros((T, 2)),
+                      fps=10.0)
+    centres = np.zeros((1, 0, 3))
+    params = {"bias": jnp.asarray([[0.2, -0.3], [0.0, 0.0]]), "cone_width": jnp.asarray([0.15, 0.15]),
+              "alpha_person": jnp.asarray(0.5), "alpha_object": jnp.asarray(0.0), "speaker_effect": jnp.asarray(0.0),
+              "stay": jnp.asarray(0.0), "locations": jnp.asarray(centres)}  # stay 0: the frames are independent
+    frames = np.asarray(jax.jit(model.frame_log_likelihood)(params, _arrays(data, centres, jnp.float64)))[:, 0]
+    assert np.sum(np.exp(frames)) * step**2 == pytest.approx(1.0, abs=2e-3)
 
 
 def test_marginal_matches_brute_force_enumeration(x64):
@@ -241,11 +270,12 @@ def test_blocks_restart_the_chain(x64):
     jparams = jax.tree_util.tree_map(jnp.asarray, params)
     lp = np.asarray(_candidate_log_probabilities(jparams, arrays))
     loose = float(jnp.sum(_marginal_log_likelihood({**jparams, "stay": jnp.asarray(0.0)}, arrays)))
-    assert loose == pytest.approx(float(np.sum(jax.scipy.special.logsumexp(lp, axis=-1))), rel=1e-9)
+    jacobian = _angles_log_jacobian(data, params)
+    assert loose == pytest.approx(float(np.sum(jax.scipy.special.logsumexp(lp, axis=-1))) + jacobian, rel=1e-9)
     prior, lik, d, w, _ = (np.asarray(a) for a in jax.jit(_candidate_terms)(jparams, arrays, JointPrior()))
     # a glance elsewhere held over the block: its first frame's density, then each frame around the last
     held = np.asarray(cone_direction_log_density(np.sum(d[1:] * d[:-1], -1), np.sqrt(w[1:] ** 2 + w[:-1] ** 2)))
-    expected = 0.0
+    expected = jacobian
     for start in (0, BLOCK_FRAMES):
         block = slice(start, start + BLOCK_FRAMES)
         total = lik[block].sum(0)
