@@ -231,7 +231,7 @@ def test_a_better_point_of_a_mode_already_found_replaces_it(monkeypatch):
     ends = iter([-14.5, -15.0, -15.0, -15.0])  # the refinements' yaw for ann, in turn (degrees)
     evidence = {15.0: 100.0, -14.5: 90.0, -15.0: 120.0}
 
-    def refine(trial, arrays, prior, to_mode, spot_descent=True):
+    def refine(trial, arrays, prior, to_mode, inverse=None):
         return {**trial, "bias": trial["bias"].at[0].set(np.radians([next(ends), 0.0]).astype(np.float32))}
 
     def laplace(values, arrays, prior):
