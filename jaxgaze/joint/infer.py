@@ -437,8 +437,9 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
     with an ESS of 10 in 100 (against 7 steps and 113 with one slot). The
     evidence counts the extra slot's volume against the little it explains: one slot
     is dropped at a time, the one whose removal raises the evidence most, each removal
-    refined from the current mode (:func:`_to_mode`, in its Laplace metric). Returns the values and the arrays (the dropped slots masked,
-    :func:`_without_concurrence`) and the kept mode's ``(evidence, inverse Hessian)`` (for :func:`_search_modes`).
+    refined from the current mode (:func:`_to_mode`, in its Laplace metric). Returns the values and the arrays (the
+    dropped slots masked, :func:`_without_concurrence`) and the kept mode's ``(evidence, inverse Hessian)`` (for
+    :func:`_search_modes`).
 
     :func:`fit_joint` prunes with the model without a fixation's spot, whose choice follows
     (:func:`_choose_spot`): a BFGS program and a Hessian of the spot's model per concurrence count

@@ -767,8 +767,9 @@ def marginal_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior
 def frame_log_likelihood(params: dict, arrays: ModelArrays, prior: JointPrior = JointPrior()) -> Float[Array, "T P"]:
     """``log p(g_ti | g_{<t, i})`` per frame and person (the chain restarting at each block): the terms that
     :func:`marginal_log_likelihood` sums, in the order of the frames (0 where the gazer is absent; with
-    :func:`measured_gaze_log_jacobian`, head pose only :func:`head_log_jacobian`). Their gradients are the scores of a time series, whose correlation from frame
-    to frame the model's own curvature does not see (:func:`~jaxgaze.joint.infer.fit_joint`'s coupling intervals)."""
+    :func:`measured_gaze_log_jacobian`, head pose only :func:`head_log_jacobian`). Their gradients are the scores of
+    a time series, whose correlation from frame to frame the model's own curvature does not see
+    (:func:`~jaxgaze.joint.infer.fit_joint`'s coupling intervals)."""
     T = arrays.present.shape[0]
     index, valid = _blocks(T)
     terms = jax.tree.map(lambda a: a[index], _candidate_terms(params, arrays, prior))
