@@ -59,6 +59,10 @@ TWIN_DISTANCE = 0.15
 #: BFGS steps of a descent (:func:`_descend`): the cap of one from the identity, which reaches it; in a Laplace
 #: metric a 6-person scene's descents converged in 34–74 (RESULTS, 2026-12-07).
 _REFINE_STEPS = 300
+#: BFGS runs of a descent at most (:func:`_descend`): a run that stops as converged with the decrement still above
+#: :data:`_NEWTON_DECREMENT` stalled (its line search shrank the step to nothing, which the Cauchy test reads as
+#: convergence) and is run again from where it stopped, its inverse Hessian reset to the metric.
+_DESCENT_RUNS = 3
 #: Newton's steps to the chosen mode before sampling (:func:`_polish_mode`), and the decrement ``∇Uᵀ Σ ∇U`` (twice
 #: the potential a full step is predicted to gain, nats) below which the mode counts as reached.
 _NEWTON_STEPS = 4
@@ -147,7 +151,13 @@ def _descend(model, params: dict, arrays: ModelArrays, frozen: dict, inverse=Non
     becomes it, Nocedal & Wright 2006, eq. 6.20's scaling taken whole). From the identity the potential's scales
     differ by 10⁴ and BFGS ran every descent to its cap of :data:`_REFINE_STEPS` steps, 8–46 nats short of the mode;
     so preconditioned, rival trials of a 6-person scene converged in 34–74 steps, 90–300 nats lower (RESULTS,
-    2026-12-07). A non-finite factor falls back to the identity."""
+    2026-12-07). A non-finite factor falls back to the identity.
+
+    BFGS's Cauchy test (``y`` and ``f`` changed by less than ``rtol``) also stops a run whose line search stalled: a
+    4-person head-only descent stopped "converged" 181 nats above the mode after a float32 rounding elsewhere in the
+    program moved its path (RESULTS, 2026-12-07). A run that so stops with the decrement ``|∇_z U|²``
+    (``∇Uᵀ Σ ∇U`` in the metric) above :data:`_NEWTON_DECREMENT` is run again from there, up to
+    :data:`_DESCENT_RUNS` runs; one that reached its cap is not (from the identity every run reaches it)."""
     flat, unravel = ravel_pytree(params)
     held = ravel_pytree(frozen)[0].astype(bool)
     scale = jnp.eye(flat.shape[0], dtype=flat.dtype)
@@ -159,9 +169,20 @@ def _descend(model, params: dict, arrays: ModelArrays, frozen: dict, inverse=Non
     def energy(z, _):
         return potential_energy(model, tuple(arrays), {}, unravel(jnp.where(held, flat, flat + scale @ z)))
 
-    solution = optx.minimise(energy, optx.BFGS(rtol=1e-6, atol=1e-6), jnp.zeros_like(flat), max_steps=_REFINE_STEPS,
-                             throw=False)
-    x = jnp.where(held, flat, flat + scale @ solution.value)
+    gradient = jax.grad(energy)
+
+    def run(carry):
+        z, runs, _ = carry
+        solution = optx.minimise(energy, optx.BFGS(rtol=1e-6, atol=1e-6), z, max_steps=_REFINE_STEPS, throw=False)
+        stalled = (solution.result == optx.RESULTS.successful) & (
+            jnp.sum(jnp.square(gradient(solution.value, None))) > _NEWTON_DECREMENT)
+        return solution.value, runs + 1, stalled
+
+    def again(carry):
+        return (carry[1] < _DESCENT_RUNS) & carry[2]
+
+    z, _, _ = jax.lax.while_loop(again, run, (jnp.zeros_like(flat), 0, jnp.asarray(True)))  # the first run always
+    x = jnp.where(held, flat, flat + scale @ z)
     at = lambda x: potential_energy(model, tuple(arrays), {}, unravel(x))  # noqa: E731
     better = jnp.all(jnp.isfinite(x)) & (at(x) <= at(flat))
     return unravel(jnp.where(better, x, flat))

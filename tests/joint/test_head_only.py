@@ -139,7 +139,8 @@ def _brute_force(data, params, i):
             new = terms[t][c][1] if present[t] else 0.0
             held = new
             if c == "e" and present[t] and present[t - 1]:
-                held = _log_normal2(rel[t] - rel[t - 1], math.sqrt(width[t] ** 2 + width[t - 1] ** 2), ratio)
+                v0 = 0.0 if share is None else share * params["cone_width"][i] ** 2  # the spot cancels
+                held = _log_normal2(rel[t] - rel[t - 1], math.sqrt(width[t] ** 2 + width[t - 1] ** 2 - 2 * v0), ratio)
             elif c != "e" and c == seq[t - 1] and present[t] and share is not None:
                 held = new + _held_spot(spot_terms, spot_rays, present, i, t, c, rho, share, params["cone_width"][i])
             lp += math.log(rho * (c == seq[t - 1]) * math.exp(held) + (1 - rho) * math.exp(terms[t][c][0] + new))
