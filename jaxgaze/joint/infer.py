@@ -169,13 +169,11 @@ def _descend(model, params: dict, arrays: ModelArrays, frozen: dict, inverse=Non
     def energy(z, _):
         return potential_energy(model, tuple(arrays), {}, unravel(jnp.where(held, flat, flat + scale @ z)))
 
-    gradient = jax.grad(energy)
-
     def run(carry):
         z, runs, _ = carry
         solution = optx.minimise(energy, optx.BFGS(rtol=1e-6, atol=1e-6), z, max_steps=_REFINE_STEPS, throw=False)
-        stalled = (solution.result == optx.RESULTS.successful) & (
-            jnp.sum(jnp.square(gradient(solution.value, None))) > _NEWTON_DECREMENT)
+        gradient = solution.state.f_info.grad  # at the run's last point: no second gradient of the model to compile
+        stalled = (solution.result == optx.RESULTS.successful) & (jnp.sum(jnp.square(gradient)) > _NEWTON_DECREMENT)
         return solution.value, runs + 1, stalled
 
     def again(carry):
