@@ -32,8 +32,8 @@ the data need it) a share ``c`` (``held_cone_share``, learnt, at most :data:`MAX
 cone's variance is an offset drawn when the target is chosen and held while it is kept
 (:func:`_held_spot`); each frame's marginal is still the cone of width ``w``. A glance elsewhere held
 scatters around its last frame by the rest, ``e_t + e_{t−1}`` with ``e = w² − c h²``: the spot moves its point for the
-whole fixation (:func:`_held_elsewhere`; scored with ``w²`` the cone widths' 90% intervals covered 0.73 with
-``c = 0.5``, 0.82 so). Frames
+whole fixation (:func:`_held_elsewhere`; scored with ``w²``, the cone widths' 90% intervals covered 0.73 with
+``c = 0.5``; with ``e``, 0.82). Frames
 counted as independent made the 90% bias intervals cover 0.48 on recordings with
 ``c = 0.5``; with the spot 0.89 (issue 37, item 5). ``z`` is summed
 out exactly by the forward algorithm, ``O(C)`` per frame and person for this transition. The chain restarts from ``π`` every
