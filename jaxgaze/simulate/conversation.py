@@ -320,6 +320,9 @@ class Conversation(NamedTuple):
         calibration_points: ``(P, M, 3)`` points of regard of each wearer's calibration session in
             the wearer's camera frame (``M = calibration_frames``; ``M = 0`` without wearers); NaN
             rows for non-wearers.
+        fixation_segment: ``(T, P)`` the fixation segment of each frame (step 5), numbered from 1 through
+            the scene; −1 where not present. A segment may follow one on the same target (a forced re-draw or the
+            same choice again): with ``held_cone_share > 0`` it draws a new spot.
     """
 
     eye_positions: np.ndarray
@@ -345,6 +348,7 @@ class Conversation(NamedTuple):
     camera_positions: np.ndarray
     eye_in_camera: np.ndarray
     calibration_points: np.ndarray
+    fixation_segment: np.ndarray
 
     @property
     def num_frames(self) -> int:
@@ -916,6 +920,7 @@ def simulate_conversation(
         camera_positions=camera_positions,
         eye_in_camera=eye_in_camera,
         calibration_points=calibration_points,
+        fixation_segment=np.where(present, segment, -1),
     )
 
 

@@ -163,6 +163,25 @@ def test_held_cone_share_holds_the_cone_offset_for_a_fixation():
     with pytest.raises(ValueError, match="held_cone_share"):
         conversation_config(held_cone_share=1.5)
 
+def test_a_fixation_segment_holds_one_target_and_one_spot():
+    """``fixation_segment``: each segment is one person's run of frames on one target; with ``held_cone_share = 1``
+    the angle to the target stays the same through it, and a segment that follows one on the same target draws
+    a new spot (the angle changes where the segment does and the target does not)."""
+    scene = simulate_conversation(jax.random.key(4), num_people=5, duration_s=30.0,
+                                  config=ConversationConfig(held_cone_share=1.0, measurement_scale_deg=(0.0, 0.0)))
+    segment, present = scene.fixation_segment, scene.present
+    np.testing.assert_array_equal(segment >= 1, present)
+    angle = _angle(_unit(scene.target_positions - scene.eye_positions), scene.true_gaze_directions)
+    for s in np.unique(segment[present]):
+        t, i = np.nonzero(segment == s)
+        assert np.unique(i).size == 1 and np.unique(scene.target[t, i]).size == 1
+        assert np.all(np.diff(t) == 1) and np.ptp(angle[t, i]) < 1e-9
+    both = present[1:] & present[:-1] & (scene.target[1:] == scene.target[:-1])
+    again = both & (segment[1:] != segment[:-1])  # a new segment on the same target
+    assert again.sum() >= 10
+    assert np.all(np.abs(angle[1:] - angle[:-1])[again] > 1e-6)
+
+
 def test_a_head_turn_limit_saturates_the_turn():
     """``head_turn_limit_deg = L``: the head turns ``L tanh(κ θ / L)`` of the line of sight's azimuth and elevation
     ``θ`` from the body (no lag, sway or tracker error here: the reported head is the true one)."""
