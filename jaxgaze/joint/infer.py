@@ -485,6 +485,22 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
     return unconstrained, arrays, scored
 
 
+def _prune_after_the_search(search, inverse_hessian, arrays: ModelArrays, prior: JointPrior, progress: bool):
+    """The concurrences pruned again (:func:`_prune_concurrences`) from the search's mode where it moved someone and
+    found no rival within the margin: a slot kept for a person's gazes at the wrong bias explains nothing at the right
+    one. Such a slot is a prior on its own, free along the rays it once explained: on an adversarial scene two of them
+    drifted in NUTS onto the one object, and NUTS took 63–160 leapfrog steps a draw (bulk ESS 3–32 of 150) where the
+    scene's one slot takes 7 (RESULTS, 2026-12-08). Returns the search, the inverse Hessian and the arrays (the
+    slots dropped masked)."""
+    if not search.moved or search.alternatives:
+        return search, inverse_hessian, arrays
+    before = np.asarray(slot_mask(arrays))
+    values, pruned, scored = _prune_concurrences(search.start, arrays, prior, progress)
+    if np.array_equal(np.asarray(slot_mask(pruned)), before):
+        return search, inverse_hessian, arrays
+    return search._replace(start=values, log_evidence=float(scored[0])), scored[1], pruned
+
+
 def _choose_shape(linear_mode: dict, shape_start: dict, arrays: ModelArrays, prior: JointPrior, scored):
     """A Gaussian-process head–gaze map (``JointPrior.coupling_shape_scale``) kept only where the data favour it over
     the linear map: the Laplace evidences of the two models, each at its own mode (MacKay 2003, eq. 28.10), their
@@ -1060,7 +1076,8 @@ def fit_joint(
             mode of the model itself (BFGS in the metric of a Laplace covariance; the wearers' eye offsets are kept), and
             sampled or fitted from there. Without wearers, concurrences the data do not need are
             then dropped (Laplace evidence; :func:`_prune_concurrences`) and every person's rival
-            bias modes compared (:mod:`~jaxgaze.joint.rivals`; head pose only, couplings too): NUTS samples each
+            bias modes compared (:mod:`~jaxgaze.joint.rivals`; head pose only, couplings too; where the search moves
+            someone, the concurrences are pruned again from its mode, :func:`_prune_after_the_search`): NUTS samples each
             mode that carries weight, SVI only the best (its ``result`` is ``ambiguous`` all the same). The best is
             taken to the mode (:func:`_polish_mode`: steps with the search's inverse Hessian, then Newton's steps
             while needed). NUTS uses the inverse Hessian of the
@@ -1123,6 +1140,7 @@ def fit_joint(
         prior, unconstrained, shape_factor, scored = _choose_shape(unconstrained, shape_start, arrays, shaped, scored)
     if at_mode:
         search, inverse_hessian = _search_modes(unconstrained, arrays, prior, data.wearers, progress, scored)
+        search, inverse_hessian, arrays = _prune_after_the_search(search, inverse_hessian, arrays, prior, progress)
         search, inverse_hessian = _polish_mode(search, inverse_hessian, arrays, prior)
         unconstrained = search.start
     widening = None  # head pose only: the couplings' intervals for errors correlated over seconds

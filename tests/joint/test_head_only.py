@@ -23,11 +23,12 @@ from jaxgaze.joint import JointPrior, fit_joint, joint_data, joint_start
 from jaxgaze.joint import rivals
 from jaxgaze.joint.infer import (_MAX_PREDICTED_GAIN, SHAPE_MIN_LOG_FACTOR, _arrays, _choose_shape, _laplace_evidence,
                                  _laplace_parts, _long_run_variance, _polish_mode, _predicted_evidence, _refine_start,
-                                 _independent_mode, _search_modes, _start_values, _to_mode, _unconstrained, _widen)
+                                 _independent_mode, _prune_after_the_search, _search_modes, _start_values, _to_mode,
+                                 _unconstrained, _widen)
 from jaxgaze.joint.rivals import ModeSearch
 from jaxgaze.joint.init import COUPLING_GRID, TILT_WIDTH_GRID, coupling_profile, tilt_width_profile
 from jaxgaze.joint.model import (COUPLING_SHAPE_BASIS, COUPLING_SHAPE_HALF_WIDTH, frame_log_likelihood,
-                                 head_gaze_angles, marginal_log_likelihood)
+                                 head_gaze_angles, marginal_log_likelihood, slot_mask)
 from jaxgaze.simulate import ConversationConfig, simulate_conversation
 
 
@@ -575,6 +576,29 @@ def test_the_evidence_of_a_point_short_of_the_mode_is_predicted_at_the_mode(grou
     assert short > 3.0  # BFGS's point is short of the mode (8.6 nats)
     assert abs(_laplace_evidence(values, arrays, plain)[0] - at_mode) < 0.15 * short  # 0.8 nats
     assert _predicted_evidence(evidence, inverse, 1e3 * gradient) == float(evidence) + _MAX_PREDICTED_GAIN
+
+
+def test_a_slot_left_with_nothing_to_explain_after_the_search_is_pruned(group_mode):
+    """A slot that explained a person's gazes at a wrong bias explains nothing once the search moves that person: where
+    the search moved someone (and found no rival to keep), the concurrences are pruned again from its mode
+    (:func:`_prune_after_the_search`). Here a slot 3 m above the group, which no gaze reaches, stands for it."""
+    arrays, plain, values, _ = group_mode
+    K = arrays.location_centres.shape[1]
+    above = jnp.mean(arrays.eye_positions, axis=(0, 1)) + jnp.asarray([0.0, 0.0, 3.0], jnp.float32)
+    centres = jnp.concatenate([arrays.location_centres, jnp.broadcast_to(above, arrays.location_centres[:, :1].shape)],
+                              axis=1)
+    extra = arrays._replace(location_centres=centres, slot_active=None)
+    grown = {**values, "alpha_object": values.get("alpha_object", jnp.zeros((), jnp.float32)),
+             "concurrence_offset": jnp.concatenate([values["concurrence_offset"], jnp.zeros((1, 3), jnp.float32)])
+             if K else jnp.zeros((1, 3), jnp.float32)}
+    assert "concurrence_drift" not in grown  # one window
+    evidence = float(_laplace_evidence(grown, extra, plain)[0])
+    kept = _prune_after_the_search(ModeSearch(grown, (), (), 0, evidence), None, extra, plain, False)
+    assert kept[2] is extra  # nobody moved: the slots stay
+    moved, _, pruned = _prune_after_the_search(ModeSearch(grown, (), (1,), 0, evidence), None, extra, plain, False)
+    mask = np.asarray(slot_mask(pruned))
+    assert not mask[K] and mask[:K].all()  # the slot above is dropped, the group's own stay
+    assert moved.log_evidence > evidence
 
 
 def test_a_wrong_coupling_is_found_and_left(group, group_mode, monkeypatch):
