@@ -31,20 +31,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgaze.geometry import unit
 from jaxgaze.joint import model
 from jaxgaze.simulate import ConversationConfig, simulate_conversation
 
 GRID = np.linspace(0.2, 0.8, 121)
 
 
-def _unit(x):
-    return x / np.linalg.norm(x, axis=-1, keepdims=True)
-
-
 def residuals(scene) -> np.ndarray:
     """``(T, P, 2)`` the true gaze about the target direction on the simulator's tangent basis (radians)."""
-    u = _unit(np.nan_to_num(scene.target_positions) - scene.eye_positions)
-    e1 = _unit(np.cross(np.array([0.0, 0.0, 1.0]), u))
+    u = np.asarray(unit(np.nan_to_num(scene.target_positions) - scene.eye_positions))
+    e1 = np.asarray(unit(np.cross(np.array([0.0, 0.0, 1.0]), u)))
     e2 = np.cross(u, e1)
     v = np.nan_to_num(scene.true_gaze_directions)
     return np.stack([np.sum(v * e1, -1), np.sum(v * e2, -1)], -1)

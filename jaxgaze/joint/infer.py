@@ -447,7 +447,7 @@ def _drop_masked_slots(search, inverse, arrays: ModelArrays):
     return search._replace(start=start, alternatives=alternatives, alternative_starts=starts), inverse, smaller
 
 
-def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, progress: bool):
+def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPrior, progress: bool, scored=None):
     """The pipeline's concurrences the data do not need, dropped while the Laplace evidence rises (MacKay 2003, eq. 28.10).
 
     The start can place two slots on one target further apart than :data:`TWIN_DISTANCE`
@@ -458,7 +458,7 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
     is dropped at a time, the one whose removal raises the evidence most, each removal
     refined from the current mode (:func:`_to_mode`, in its Laplace metric). Returns the values and the arrays (the
     dropped slots masked, :func:`_without_concurrence`) and the kept mode's ``(evidence, inverse Hessian)`` (for
-    :func:`_search_modes`).
+    :func:`_search_modes`). ``scored``: the start's ``(evidence, inverse Hessian)`` when already computed.
 
     :func:`fit_joint` prunes with the model without a fixation's spot, whose choice follows
     (:func:`_choose_spot`): a BFGS program and a Hessian of the spot's model per concurrence count
@@ -466,7 +466,7 @@ def _prune_concurrences(unconstrained: dict, arrays: ModelArrays, prior: JointPr
     a target, not between targets, so they do not bear on how many targets there are.
     """
     kept = [int(k) for k in np.flatnonzero(np.asarray(slot_mask(arrays)))]  # the twins are masked already
-    scored = _laplace_evidence(unconstrained, arrays, prior)
+    scored = _laplace_evidence(unconstrained, arrays, prior) if scored is None else scored
     with progress_bar(progress, desc="joint concurrences") as bar:
         while kept:
             best = None
@@ -495,7 +495,8 @@ def _prune_after_the_search(search, inverse_hessian, arrays: ModelArrays, prior:
     if not search.moved or search.alternatives:
         return search, inverse_hessian, arrays
     before = np.asarray(slot_mask(arrays))
-    values, pruned, scored = _prune_concurrences(search.start, arrays, prior, progress)
+    values, pruned, scored = _prune_concurrences(search.start, arrays, prior, progress,
+                                                 (search.log_evidence, inverse_hessian))
     if np.array_equal(np.asarray(slot_mask(pruned)), before):
         return search, inverse_hessian, arrays
     return search._replace(start=values, log_evidence=float(scored[0])), scored[1], pruned
